@@ -1,0 +1,97 @@
+"""The ``atr-node`` command (ICD section 6).
+
+Each subcommand lives in ``atr_node/commands/<name>.py`` with two functions::
+
+    def add_arguments(parser: argparse.ArgumentParser) -> None: ...
+    def run(args: argparse.Namespace) -> int: ...          # the exit status
+
+A subcommand whose module does not exist yet is listed, says that it is not built yet, and
+exits with status 2: it never pretends to work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import logging
+import sys
+
+from . import __version__
+from .errors import AtrError
+
+# name -> (one-line help, issue that builds it)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("the main job on built-in data: simulate a multi-leg mission, calibrate, run the node, "
+             "score against the truth, write the report and plots", "evaluation and demo"),
+    "run": ("the on-vehicle daemon on live links (--config FILE)", "node"),
+    "replay": ("feed a recording (.atrlog or .xtf) through the node's pipeline", "node"),
+    "simulate": ("generate a synthetic multi-leg mission: .atrlog and truth CSV", "simulation"),
+    "calibrate": ("estimate detector confidence and P(y) curves by target injection", "calibration"),
+    "evaluate": ("score contacts against a truth CSV and draw ROC curves", "evaluation and demo"),
+    "bench": ("benchmarks of detectors, fusion, simulation and the node", "detectors"),
+    "convert": ("convert between .xtf and .atrlog", "real recordings"),
+    "batch": ("process many recordings on a Dask cluster and merge their evidence", "scale-out"),
+    "monitor": ("live view of a node: heartbeat and contacts", "operators' tools"),
+    "export": ("export contacts to GeoJSON, KML or CSV", "operators' tools"),
+    "info": ("show the settings a config file gives, and what is built", "foundation"),
+}
+
+
+def _module_name(cmd: str) -> str:
+    return f"atr_node.commands.{cmd}"
+
+
+def _is_built(cmd: str) -> bool:
+    return importlib.util.find_spec(_module_name(cmd)) is not None
+
+
+def _not_built(args: argparse.Namespace) -> int:
+    issue = COMMANDS[args.command][1]
+    print(f"atr-node {args.command}: not built yet (it comes with the {issue} issue).", file=sys.stderr)
+    return 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="atr-node",
+        description="Automatic target recognition for mine-hunting AUV synthetic aperture sonar: four detectors, "
+                    "through-the-sensor performance estimates, Dempster-Shafer fusion across detectors and legs.",
+    )
+    parser.add_argument("--version", action="version", version=f"atr-node {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (help_text, issue) in COMMANDS.items():
+        if _is_built(name):
+            mod = importlib.import_module(_module_name(name))
+            p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip(),
+                               formatter_class=argparse.RawDescriptionHelpFormatter)
+            mod.add_arguments(p)
+            p.set_defaults(func=mod.run)
+        else:
+            p = sub.add_parser(name, help=f"{help_text} [not built yet]",
+                               description=f"{help_text}.\n\nNot built yet: it comes with the {issue} issue.")
+            p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+            p.set_defaults(func=_not_built)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    if not args.command:
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except AtrError as exc:
+        print(f"atr-node {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

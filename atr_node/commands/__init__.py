@@ -1,0 +1,1 @@
+"""Subcommands of ``atr-node``: one module each, with ``add_arguments(parser)`` and ``run(args)``."""

@@ -1,0 +1,428 @@
+"""Typed, validated settings loaded from TOML.
+
+The schema is the tree of frozen dataclasses below: every section is a dataclass, every key a
+typed field with its default. :func:`load_settings` reads a TOML file, rejects unknown keys
+and ill-typed values with a :class:`~atr_node.errors.ConfigError` that names the file and the
+dotted key, and checks ranges in each section's ``__post_init__``. The defaults describe a
+120 kHz SAS like the Edgetech 4400 of the paper (10 cm pixels, 14 m altitude); the file
+``config/default.toml`` spells them out and a test keeps the two equal.
+
+Sections may be given partly: missing keys keep their defaults. A file may also set
+``include = "other.toml"`` at top level to start from another file (relative to itself).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from .errors import ConfigError
+
+DETECTOR_NAMES: tuple[str, ...] = ("mf", "lac", "smf", "z")
+"""Detector identifiers in the order of SPEC section 2: matched filter, lacunarity,
+segmented matched filter, mean (Z) test."""
+
+
+def _check(cond: bool, key: str, message: str) -> None:
+    if not cond:
+        raise ConfigError(message, key=key)
+
+
+@dataclass(frozen=True)
+class MissionSettings:
+    """The mission metric frame (SPEC section 7)."""
+
+    frame: Literal["utm", "ltp"] = "utm"
+    """``utm``: UTM zone of the mission origin (east/north are UTM easting/northing);
+    ``ltp``: local tangent plane (azimuthal equidistant) centred on the origin."""
+    origin_lat_deg: float | None = None
+    """Mission origin; absent: the first navigation fix of the mission."""
+    origin_lon_deg: float | None = None
+
+    def __post_init__(self) -> None:
+        _check((self.origin_lat_deg is None) == (self.origin_lon_deg is None), "mission.origin_lat_deg",
+               "origin_lat_deg and origin_lon_deg are given together or not at all")
+        if self.origin_lat_deg is not None:
+            _check(-90.0 <= self.origin_lat_deg <= 90.0, "mission.origin_lat_deg", "must be in [-90, 90]")
+            _check(-180.0 <= self.origin_lon_deg <= 360.0, "mission.origin_lon_deg", "must be in [-180, 360]")
+
+
+@dataclass(frozen=True)
+class SensorSettings:
+    """The sonar, when tiles do not carry a ``sensor`` map (ICD section 1)."""
+
+    frequency_hz: float = 120e3
+    bandwidth_hz: float = 15e3
+    tx_length_m: float = 0.2
+    """Transmit array length L_T; SAS along-track resolution is L_T / 2."""
+    rx_length_m: float = 1.2
+    """Receive array length L_R."""
+    n_rx: int = 24
+    sas: bool = True
+    altitude_m: float = 14.0
+    """Nominal altitude above the seabed (the per-ping altitude from nav wins)."""
+    max_range_m: float = 150.0
+    dr_m: float = 0.1
+    dx_m: float = 0.1
+    sound_speed_m_s: float = 1500.0
+
+    def __post_init__(self) -> None:
+        for name in ("frequency_hz", "bandwidth_hz", "tx_length_m", "rx_length_m", "altitude_m",
+                     "max_range_m", "dr_m", "dx_m", "sound_speed_m_s"):
+            _check(getattr(self, name) > 0, f"sensor.{name}", "must be > 0")
+        _check(self.n_rx >= 1, "sensor.n_rx", "must be >= 1")
+
+
+@dataclass(frozen=True)
+class TemplateSettings:
+    """The generic proud target and its range-adaptive windows (SPEC section 1)."""
+
+    length_m: float = 2.0
+    """Along-track length L of the echo and shadow zones."""
+    echo_width_m: float = 0.6
+    """Across-track width W of the echo zone."""
+    height_m: float = 0.5
+    """Target height h, for the shadow length S(r) = h r / (H - h)."""
+    shadow_min_m: float = 0.5
+    shadow_max_m: float = 8.0
+    context_factor: float = 3.0
+    """SMF normalisation window N: this many times the template in each direction."""
+
+    def __post_init__(self) -> None:
+        for name in ("length_m", "echo_width_m", "height_m", "shadow_min_m", "shadow_max_m"):
+            _check(getattr(self, name) > 0, f"template.{name}", "must be > 0")
+        _check(self.shadow_max_m >= self.shadow_min_m, "template.shadow_max_m", "must be >= shadow_min_m")
+        _check(self.context_factor >= 1.0, "template.context_factor", "must be >= 1")
+
+
+@dataclass(frozen=True)
+class ThresholdSettings:
+    """Detector thresholds tau_d used when no performance model is loaded."""
+
+    mf: float = 1.0
+    lac: float = 1.5
+    smf: float = 0.4
+    z: float = 2.0
+
+
+@dataclass(frozen=True)
+class DetectorSettings:
+    """Detectors and detection extraction (SPEC sections 2-3)."""
+
+    enabled: tuple[str, ...] = DETECTOR_NAMES
+    threshold: ThresholdSettings = field(default_factory=ThresholdSettings)
+    background_forgetting: float = 0.8
+    """Weight of the past in the per-range background b(j) tracked over a leg's tiles."""
+    min_valid_fraction: float = 0.5
+    """A window with fewer valid pixels than this scores NaN."""
+    lacunarity_floor: float = 1e-3
+    """mean^2 floor of the lacunarity, as a fraction of the squared background."""
+    sigma_floor: float = 1e-3
+    """Standard-deviation floor of the mean test, as a fraction of the background."""
+    min_extent_m: float = 0.2
+    max_extent_m: float = 6.0
+    precision: Literal["float64", "float32"] = "float64"
+    """Summed-area tables in float64 (exact) or float32 (faster, loses digits)."""
+    decimation: int = 1
+    """Score every n-th pixel in each direction (speed option; 1 = full resolution)."""
+
+    def __post_init__(self) -> None:
+        bad = [d for d in self.enabled if d not in DETECTOR_NAMES]
+        _check(not bad, "detectors.enabled", f"unknown detector(s) {bad}; expected some of {list(DETECTOR_NAMES)}")
+        _check(len(set(self.enabled)) == len(self.enabled), "detectors.enabled", "lists a detector twice")
+        _check(0.0 <= self.background_forgetting < 1.0, "detectors.background_forgetting", "must be in [0, 1)")
+        _check(0.0 < self.min_valid_fraction <= 1.0, "detectors.min_valid_fraction", "must be in (0, 1]")
+        _check(self.lacunarity_floor > 0, "detectors.lacunarity_floor", "must be > 0")
+        _check(self.sigma_floor > 0, "detectors.sigma_floor", "must be > 0")
+        _check(0 < self.min_extent_m <= self.max_extent_m, "detectors.min_extent_m",
+               "must be > 0 and <= max_extent_m")
+        _check(self.decimation in (1, 2, 4), "detectors.decimation", "must be 1, 2 or 4")
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """Target signature simulation and the sonar performance model (SPEC section 4)."""
+
+    subrays: int = 2
+    """k: k x k sub-rays per pixel."""
+    seabed: Literal["mud", "silt", "sand", "gravel", "rock"] = "silt"
+    temperature_c: float = 14.0
+    salinity_psu: float = 38.0
+    depth_m: float = 30.0
+    ph: float = 8.1
+    sea_state: float = 1.0
+    source_level_db: float = 210.0
+    target_strength_db: float = -15.0
+
+    def __post_init__(self) -> None:
+        _check(1 <= self.subrays <= 16, "simulation.subrays", "must be in [1, 16]")
+        _check(-2.0 <= self.temperature_c <= 40.0, "simulation.temperature_c", "must be in [-2, 40]")
+        _check(0.0 <= self.salinity_psu <= 45.0, "simulation.salinity_psu", "must be in [0, 45]")
+        _check(self.depth_m >= 0.0, "simulation.depth_m", "must be >= 0")
+        _check(0.0 <= self.sea_state <= 9.0, "simulation.sea_state", "must be in [0, 9]")
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """Detector performance estimates (SPEC section 5)."""
+
+    targets_per_image: int = 40
+    iterations: int = 50
+    prior_target: float = 0.1
+    pd_target: float = 0.95
+    range_bin_m: float = 10.0
+    online: bool = True
+    online_tiles: int = 8
+    """On-line calibration uses this many first tiles of the mission."""
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        _check(self.targets_per_image >= 1, "calibration.targets_per_image", "must be >= 1")
+        _check(self.iterations >= 1, "calibration.iterations", "must be >= 1")
+        _check(0.0 < self.prior_target < 1.0, "calibration.prior_target", "must be in (0, 1)")
+        _check(0.0 < self.pd_target < 1.0, "calibration.pd_target", "must be in (0, 1)")
+        _check(self.range_bin_m > 0, "calibration.range_bin_m", "must be > 0")
+        _check(self.online_tiles >= 1, "calibration.online_tiles", "must be >= 1")
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """Dempster-Shafer fusion and the evidence grid (SPEC sections 6-7)."""
+
+    cell_m: float = 0.5
+    chunk_cells: int = 64
+    """A chunk is chunk_cells x chunk_cells cells, allocated only where covered."""
+    eps: float = 1e-9
+    """Masses are clamped to [0, 1 - eps] so total conflict cannot occur."""
+    nav_sigma_m: float = 1.0
+    """1-sigma horizontal navigation uncertainty, part of the association gate."""
+    report_bel: float = 0.5
+    """A contact is reported where Bel(T) reaches this."""
+    withdraw_bel: float = 0.4
+    """A reported contact whose Bel(T) falls below this is withdrawn (hysteresis)."""
+    diagnostics: bool = False
+    """Keep per-detector accumulators per cell as well."""
+
+    def __post_init__(self) -> None:
+        _check(0.05 <= self.cell_m <= 5.0, "fusion.cell_m", "must be in [0.05, 5] m")
+        _check(8 <= self.chunk_cells <= 1024, "fusion.chunk_cells", "must be in [8, 1024]")
+        _check(0.0 < self.eps < 1e-2, "fusion.eps", "must be in (0, 0.01)")
+        _check(self.nav_sigma_m >= 0, "fusion.nav_sigma_m", "must be >= 0")
+        _check(0.0 < self.withdraw_bel <= self.report_bel < 1.0, "fusion.report_bel",
+               "need 0 < withdraw_bel <= report_bel < 1")
+
+
+@dataclass(frozen=True)
+class LinkSettings:
+    """The node's links (ICD sections 1-3); URLs and endpoints, empty = not used."""
+
+    sonar_endpoint: str = "tcp://127.0.0.1:5550"
+    sonar_socket: Literal["pull", "sub"] = "pull"
+    nmea_url: str = ""
+    """Any URL pyserial opens: /dev/ttyS1, socket://host:port, loop://, a pty path."""
+    nmea_baudrate: int = 115200
+    can_interface: str = ""
+    """python-can interface: socketcan aboard, virtual on the bench; empty = no CAN."""
+    can_channel: str = "can0"
+    can_dbc: str = "atr_node.dbc"
+    """DBC file, relative to the config file's folder when not absolute."""
+    publish_endpoint: str = "tcp://127.0.0.1:5560"
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """The on-vehicle service (ICD sections 3 and 6)."""
+
+    data_dir: str = "/var/lib/atr-node"
+    queue_tiles: int = 8
+    """Bounded queue between ingest and detection; beyond it the node degrades."""
+    heartbeat_s: float = 1.0
+    snapshot_every_tiles: int = 20
+    record: bool = True
+    """Record every received message to an .atrlog in data_dir."""
+    nav_max_gap_s: float = 2.0
+    """Tiles whose pings are farther than this from any INS fix are held, not georeferenced."""
+    tile_margin_m: float = 0.0
+    """Extra margin around tiles beyond half the largest window (0 = just that)."""
+
+    def __post_init__(self) -> None:
+        _check(self.queue_tiles >= 1, "node.queue_tiles", "must be >= 1")
+        _check(0.05 <= self.heartbeat_s <= 1.0, "node.heartbeat_s", "must be in [0.05, 1] s (ICD: at least once a second)")
+        _check(self.snapshot_every_tiles >= 1, "node.snapshot_every_tiles", "must be >= 1")
+        _check(self.nav_max_gap_s > 0, "node.nav_max_gap_s", "must be > 0")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """All settings; the root of the TOML file."""
+
+    mission: MissionSettings = field(default_factory=MissionSettings)
+    sensor: SensorSettings = field(default_factory=SensorSettings)
+    template: TemplateSettings = field(default_factory=TemplateSettings)
+    detectors: DetectorSettings = field(default_factory=DetectorSettings)
+    simulation: SimulationSettings = field(default_factory=SimulationSettings)
+    calibration: CalibrationSettings = field(default_factory=CalibrationSettings)
+    fusion: FusionSettings = field(default_factory=FusionSettings)
+    links: LinkSettings = field(default_factory=LinkSettings)
+    node: NodeSettings = field(default_factory=NodeSettings)
+    source: str | None = field(default=None, compare=False)
+    """The file these settings came from (None: built-in defaults)."""
+
+    def replace(self, **sections: Any) -> "Settings":
+        """A copy with some sections replaced, e.g. ``s.replace(fusion=FusionSettings(cell_m=1))``."""
+        return dataclasses.replace(self, **sections)
+
+
+# ----------------------------------------------------------------------------------------
+# Loading
+
+
+def _type_name(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin is Literal:
+        return " or ".join(repr(a) for a in typing.get_args(tp))
+    if origin in (types.UnionType, typing.Union):
+        return " or ".join(_type_name(a) for a in typing.get_args(tp) if a is not type(None))
+    if origin is tuple:
+        return f"list of {_type_name(typing.get_args(tp)[0])}"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _convert(value: Any, tp: Any, key: str, path: str) -> Any:
+    """Check ``value`` against the annotation ``tp``; return it converted (lists -> tuples)."""
+    origin = typing.get_origin(tp)
+    if origin in (types.UnionType, typing.Union):
+        errors = []
+        for arg in typing.get_args(tp):
+            if arg is type(None):
+                continue
+            try:
+                return _convert(value, arg, key, path)
+            except ConfigError as exc:
+                errors.append(exc)
+        raise ConfigError(f"expected {_type_name(tp)}, got {type(value).__name__} {value!r}", path=path, key=key)
+    if origin is Literal:
+        if value not in typing.get_args(tp):
+            raise ConfigError(f"expected one of {list(typing.get_args(tp))}, got {value!r}", path=path, key=key)
+        return value
+    if origin is tuple:
+        if not isinstance(value, list):
+            raise ConfigError(f"expected a list, got {type(value).__name__} {value!r}", path=path, key=key)
+        item_tp = typing.get_args(tp)[0]
+        return tuple(_convert(v, item_tp, f"{key}[{i}]", path) for i, v in enumerate(value))
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"expected a table [{key}], got {type(value).__name__}", path=path, key=key)
+        return _build(tp, value, key, path)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"expected true or false, got {type(value).__name__} {value!r}", path=path, key=key)
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"expected an integer, got {type(value).__name__} {value!r}", path=path, key=key)
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"expected a number, got {type(value).__name__} {value!r}", path=path, key=key)
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"expected a string, got {type(value).__name__} {value!r}", path=path, key=key)
+        return value
+    raise ConfigError(f"unsupported schema type {tp!r}", path=path, key=key)  # pragma: no cover
+
+
+def _build(cls: type, table: dict[str, Any], prefix: str, path: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init and f.name != "source"}
+    kwargs: dict[str, Any] = {}
+    for key, value in table.items():
+        dotted = f"{prefix}.{key}" if prefix else key
+        if key not in fields:
+            known = ", ".join(sorted(fields))
+            raise ConfigError(f"unknown key; known keys here: {known}", path=path, key=dotted)
+        kwargs[key] = _convert(value, hints[key], dotted, path)
+    try:
+        return cls(**kwargs)
+    except ConfigError as exc:
+        raise ConfigError(str(exc).split(": ", 1)[-1], path=path, key=exc.key) from None
+
+
+def settings_from_dict(table: dict[str, Any], *, path: str = "<dict>") -> Settings:
+    """Build validated :class:`Settings` from a parsed TOML table."""
+    table = dict(table)
+    table.pop("include", None)
+    settings = _build(Settings, table, "", path)
+    return dataclasses.replace(settings, source=None if path == "<dict>" else path)
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    path = path.resolve()
+    if path in seen:
+        raise ConfigError("include loop", path=str(path), key="include")
+    try:
+        with open(path, "rb") as fh:
+            table = tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError("file not found", path=str(path)) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"not valid TOML: {exc}", path=str(path)) from None
+    include = table.get("include")
+    if include is not None:
+        if not isinstance(include, str):
+            raise ConfigError("expected a file name", path=str(path), key="include")
+        base = _read_toml(path.parent / include, seen + (path,))
+        table = _merge(base, {k: v for k, v in table.items() if k != "include"})
+    return table
+
+
+def load_settings(path: str | os.PathLike[str] | None = None) -> Settings:
+    """Load settings from a TOML file; ``None`` gives the built-in defaults.
+
+    Raises
+    ------
+    ConfigError
+        The file is missing or not TOML, or a key is unknown, ill-typed or out of range; the
+        message names the file and the dotted key.
+    """
+    if path is None:
+        return Settings()
+    p = Path(path)
+    return settings_from_dict(_read_toml(p), path=str(p))
+
+
+def default_config_path() -> Path:
+    """``config/default.toml`` of a source checkout (None of it is needed when installed)."""
+    return Path(__file__).resolve().parent.parent / "config" / "default.toml"
+
+
+def resolve_relative(settings: Settings, name: str) -> Path:
+    """A file named in the settings, relative to the settings file's folder when not absolute.
+
+    Relative names that do not exist there are looked up in the package's ``data`` folder.
+    """
+    p = Path(name)
+    if p.is_absolute():
+        return p
+    if settings.source:
+        cand = Path(settings.source).resolve().parent / p
+        if cand.exists():
+            return cand
+    return Path(__file__).resolve().parent / "data" / p

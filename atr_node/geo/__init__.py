@@ -1,0 +1,6 @@
+"""The mission metric frame and georeferencing of sonar pixels (SPEC sections 0 and 7)."""
+
+from .frame import MissionFrame, utm_zone
+from .georef import TileGeometry, across_track_unit, pixel_latlon, tile_geometry
+
+__all__ = ["MissionFrame", "TileGeometry", "across_track_unit", "pixel_latlon", "tile_geometry", "utm_zone"]

@@ -1,0 +1,192 @@
+"""The recorded mission log ``.atrlog`` (ICD section 4).
+
+A file of consecutive msgpack maps, in arrival order::
+
+    {"t": float (arrival, UNIX seconds), "link": "sonar" | "nmea" | "can", "msg": ...}
+
+    link "sonar": msg = tile map (ICD section 1)
+    link "nmea":  msg = bin, one sentence with or without CR LF
+    link "can":   msg = {"id": int, "data": bin, "ext": bool}
+
+The reader streams: it holds one read buffer, never the file. A truncated last record (power
+cut while recording) is dropped with a warning and everything before it is kept. A record
+that decodes but breaks the table above is skipped with a warning naming its byte offset
+(or raised, with ``strict=True``); the tile map inside a sonar record is validated later by
+the tile parser, not here.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, BinaryIO, Iterator
+
+import msgpack
+
+from ..errors import LogFormatError
+
+log = logging.getLogger(__name__)
+
+LINKS = ("sonar", "nmea", "can")
+READ_SIZE = 1 << 20
+MAX_BUFFER = 1 << 30  # a record may hold a large tile
+
+
+@dataclass(frozen=True)
+class LogRecord:
+    """One record of an .atrlog, with the byte offset where it starts."""
+
+    t: float
+    link: str
+    msg: Any
+    offset: int = 0
+
+
+def check_record(obj: Any) -> str | None:
+    """Why ``obj`` is not a valid record of ICD section 4, or None when it is."""
+    if not isinstance(obj, dict):
+        return f"expected a map, got {type(obj).__name__}"
+    for k in ("t", "link", "msg"):
+        if k not in obj:
+            return f"missing key '{k}'"
+    t = obj["t"]
+    if isinstance(t, bool) or not isinstance(t, (int, float)) or t != t or t in (float("inf"), float("-inf")):
+        return f"'t' must be a finite number, got {t!r}"
+    link, msg = obj["link"], obj["msg"]
+    if link not in LINKS:
+        return f"'link' must be one of {list(LINKS)}, got {link!r}"
+    if link == "sonar" and not isinstance(msg, dict):
+        return f"a sonar record's msg must be a tile map, got {type(msg).__name__}"
+    if link == "nmea" and not isinstance(msg, (bytes, bytearray)):
+        return f"an nmea record's msg must be bin, got {type(msg).__name__}"
+    if link == "can":
+        if not isinstance(msg, dict):
+            return f"a can record's msg must be a map, got {type(msg).__name__}"
+        cid, data, ext = msg.get("id"), msg.get("data"), msg.get("ext")
+        if isinstance(cid, bool) or not isinstance(cid, int) or cid < 0:
+            return f"a can record's id must be an integer >= 0, got {cid!r}"
+        if not isinstance(data, (bytes, bytearray)):
+            return f"a can record's data must be bin, got {type(data).__name__}"
+        if not isinstance(ext, bool):
+            return f"a can record's ext must be true or false, got {ext!r}"
+    return None
+
+
+@dataclass
+class AtrLogReader:
+    """Stream the records of an .atrlog.
+
+    Iterating yields :class:`LogRecord` in file order. Counters tell what happened:
+    ``records`` (yielded), ``rejected`` (decoded but malformed, skipped), ``truncated``
+    (True when the file ended inside a record).
+    """
+
+    path: str | os.PathLike[str]
+    strict: bool = False
+    records: int = 0
+    rejected: int = 0
+    truncated: bool = False
+    errors: list[str] = field(default_factory=list)
+
+    def __iter__(self) -> Iterator[LogRecord]:
+        path = str(self.path)
+        with open(path, "rb") as fh:
+            yield from self._iter_stream(fh, path)
+
+    def _iter_stream(self, fh: BinaryIO, path: str) -> Iterator[LogRecord]:
+        unpacker = msgpack.Unpacker(fh, raw=False, read_size=READ_SIZE, max_buffer_size=MAX_BUFFER,
+                                    strict_map_key=False)
+        size = os.fstat(fh.fileno()).st_size if hasattr(fh, "fileno") else None
+        offset = 0
+        while True:
+            try:
+                obj = unpacker.unpack()
+            except msgpack.OutOfData:
+                end = unpacker.tell()
+                if size is not None and end < size:
+                    self.truncated = True
+                    msg = f"{path}: truncated last record at byte {end} ({size - end} bytes ignored)"
+                    log.warning(msg)
+                    self.errors.append(msg)
+                return
+            except (msgpack.ExtraData, msgpack.FormatError, msgpack.StackError, ValueError) as exc:
+                # Not msgpack from here on: nothing after it can be framed reliably.
+                msg = f"{path}: undecodable data at byte {offset}: {exc}; the rest of the file is ignored"
+                if self.strict:
+                    raise LogFormatError(f"undecodable data: {exc}", path=path, offset=offset) from None
+                log.warning(msg)
+                self.errors.append(msg)
+                self.rejected += 1
+                return
+            start, offset = offset, unpacker.tell()
+            why = check_record(obj)
+            if why is not None:
+                if self.strict:
+                    raise LogFormatError(why, path=path, offset=start)
+                self.rejected += 1
+                msg = f"{path}: record at byte {start} rejected: {why}"
+                log.warning(msg)
+                self.errors.append(msg)
+                continue
+            self.records += 1
+            yield LogRecord(t=float(obj["t"]), link=obj["link"], msg=obj["msg"], offset=start)
+
+
+def read_atrlog(path: str | os.PathLike[str], *, strict: bool = False) -> Iterator[LogRecord]:
+    """Stream the records of an .atrlog (see :class:`AtrLogReader`)."""
+    return iter(AtrLogReader(path, strict=strict))
+
+
+class AtrLogWriter:
+    """Append records to an .atrlog.
+
+    ``flush_every`` records, the file is flushed to the OS (and ``fsync``-ed with
+    ``fsync=True``), so a power cut loses at most that many records and leaves a file whose
+    truncated tail the reader skips.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, append: bool = False, flush_every: int = 1,
+                 fsync: bool = False) -> None:
+        self.path = Path(path)
+        self._fh = open(self.path, "ab" if append else "wb")
+        self._packer = msgpack.Packer(use_bin_type=True)
+        self.flush_every = max(int(flush_every), 1)
+        self.fsync = fsync
+        self.records = 0
+        self.bytes = self._fh.tell()
+
+    def write(self, t: float, link: str, msg: Any) -> int:
+        """Append one record; return its byte offset. The record is checked first."""
+        rec = {"t": float(t), "link": link, "msg": msg}
+        why = check_record(rec)
+        if why is not None:
+            raise LogFormatError(why, path=str(self.path), offset=self.bytes)
+        data = self._packer.pack(rec)
+        offset = self.bytes
+        self._fh.write(data)
+        self.bytes += len(data)
+        self.records += 1
+        if self.records % self.flush_every == 0:
+            self.flush()
+        return offset
+
+    def write_record(self, rec: LogRecord) -> int:
+        return self.write(rec.t, rec.link, rec.msg)
+
+    def flush(self) -> None:
+        self._fh.flush()
+        if self.fsync:
+            os.fsync(self._fh.fileno())
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            self.flush()
+            self._fh.close()
+
+    def __enter__(self) -> "AtrLogWriter":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
