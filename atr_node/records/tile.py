@@ -209,14 +209,17 @@ class Tile:
             raise GeometryError(f"{self.ident}: no nav, so no altitude (interpolate the INS first)")
         return self.nav.altitude_m
 
-    def ground_range(self, altitude_m: np.ndarray | float | None = None) -> "Tile":
+    def ground_range(self, altitude_m: np.ndarray | float | None = None, *, range0_m: float | None = None,
+                     cols: int | None = None) -> "Tile":
         """This tile on a ground-range axis (SPEC section 0): ``r = sqrt(R^2 - H^2)``.
 
-        The ground axis keeps the spacing ``dr_m`` and starts at the ground range of column
-        0 at the highest altitude (rounded down to a multiple of ``dr_m``); samples from the
-        water column (R < H) are dropped and ground ranges with no slant sample are NaN.
-        Pixels are interpolated linearly in slant range, row by row. A ground-range tile is
-        returned unchanged.
+        The ground axis keeps the spacing ``dr_m``. By default it starts at the ground range
+        of column 0 at the highest altitude (rounded down to a multiple of ``dr_m``) and ends
+        at the farthest ground range; ``range0_m`` and ``cols`` fix it instead (the node
+        keeps one axis per leg so that tiles join into a strip). Samples from the water
+        column (R < H) are dropped and ground ranges with no slant sample are NaN. Pixels are
+        interpolated linearly in slant range, row by row. A ground-range tile is returned
+        unchanged.
         """
         if not self.slant:
             return self
@@ -228,10 +231,16 @@ class Tile:
             raise GeometryError(f"{self.ident}: altitude must be finite and >= 0")
         r_slant_max = self.range0_m + self.dr_m * (self.cols - 1)
         hmax = float(alt.max())
-        g0 = math.sqrt(max(self.range0_m ** 2 - hmax ** 2, 0.0))
-        g0 = math.floor(g0 / self.dr_m) * self.dr_m
-        gmax = math.sqrt(max(r_slant_max ** 2 - float(alt.min()) ** 2, 0.0))
-        ncols = max(int(math.floor((gmax - g0) / self.dr_m + 1e-9)) + 1, 1)
+        if range0_m is None:
+            g0 = math.sqrt(max(self.range0_m ** 2 - hmax ** 2, 0.0))
+            g0 = math.floor(g0 / self.dr_m) * self.dr_m
+        else:
+            g0 = float(range0_m)
+        if cols is None:
+            gmax = math.sqrt(max(r_slant_max ** 2 - float(alt.min()) ** 2, 0.0))
+            ncols = max(int(math.floor((gmax - g0) / self.dr_m + 1e-9)) + 1, 1)
+        else:
+            ncols = int(cols)
         g = g0 + self.dr_m * np.arange(ncols, dtype=np.float64)
         slant_r = np.sqrt(g[None, :] ** 2 + alt[:, None] ** 2)
         f = (slant_r - self.range0_m) / self.dr_m

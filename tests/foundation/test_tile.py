@@ -246,3 +246,16 @@ def test_ground_range_needs_altitude():
     with pytest.raises(GeometryError):
         tile.ground_range(-1.0)
     assert make_tile(slant=False).ground_range() is not None
+
+
+def test_ground_range_on_a_fixed_axis():
+    rows, cols, dr, h = 2, 300, 0.1, 5.0
+    px = np.tile(np.arange(cols, dtype=np.float32) + 1, (rows, 1))
+    tile = Tile("m", 0, "port", 0, px, "intensity", 0.0, dr, 0.1, True, np.arange(rows, dtype=float),
+                wire_dtype="float32")
+    g = tile.ground_range(h, range0_m=2.0, cols=350)
+    assert g.range0_m == 2.0 and g.cols == 350
+    expected = 1 + np.sqrt(g.ranges_m ** 2 + h * h) / dr
+    ok = np.sqrt(g.ranges_m ** 2 + h * h) <= dr * (cols - 1)
+    np.testing.assert_allclose(g.pixels[0, ok], expected[ok], rtol=1e-5)
+    assert np.isnan(g.pixels[0, ~ok]).all() and (~ok).any()

@@ -1,0 +1,150 @@
+"""Nav merge: every tile leaves this stage on ground range with per-ping nav, or not at all.
+
+A tile that carries its own ``nav`` map uses it. Otherwise the INS track is interpolated at
+its ping times; a tile that arrives before the INS fixes that bracket its last ping is held
+until they come. When the INS stays silent past ``max_gap_s`` after a held tile's last ping,
+the tile is released with its pings that have no fresh fix set to no data (NaN): they give
+no evidence, rather than evidence put in the wrong place. Such pings are counted.
+
+Clock: ``now`` is the arrival time of the record being processed (the live wall clock, or the
+recorded arrival time in a replay), so replays are deterministic.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..records.nav import NavTrack, nav_jumps
+from ..records.tile import Tile
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class NavMergeStats:
+    tiles_with_own_nav: int = 0
+    tiles_interpolated: int = 0
+    tiles_held: int = 0
+    pings_without_nav: int = 0
+    tiles_without_nav: int = 0
+    nav_jump_pings: int = 0
+    reasons: dict[str, int] = field(default_factory=dict)
+
+
+class NavMerger:
+    """Attach nav to tiles and convert them to ground range.
+
+    Parameters
+    ----------
+    track
+        The INS track the links feed.
+    max_gap_s
+        How long after a held tile's last ping the INS may stay silent before the tile is
+        released with its un-navigated pings blanked.
+    max_speed_m_s
+        Steps between pings faster than this are nav jumps (in tile nav too).
+    default_altitude_m
+        Altitude for slant-to-ground conversion when nav has none.
+    """
+
+    def __init__(self, track: NavTrack, *, max_gap_s: float = 2.0, max_speed_m_s: float = 15.0,
+                 default_altitude_m: float = 14.0, max_held: int = 64) -> None:
+        self.track = track
+        self.max_gap_s = float(max_gap_s)
+        self.max_speed_m_s = float(max_speed_m_s)
+        self.default_altitude_m = float(default_altitude_m)
+        self.max_held = int(max_held)
+        self._held: deque[Tile] = deque()
+        self.stats = NavMergeStats()
+
+    @property
+    def held(self) -> int:
+        return len(self._held)
+
+    def push(self, tile: Tile, now: float) -> list[Tile]:
+        """Take a validated tile; return the tiles now ready (in arrival order)."""
+        if tile.nav is not None:
+            self.stats.tiles_with_own_nav += 1
+            if self._held:  # keep arrival order
+                self._held.append(tile)
+                return self.poll(now)
+            return [self._finish(tile, tile.nav, np.ones(tile.rows, bool))]
+        self._held.append(tile)
+        self.stats.tiles_held += 1
+        return self.poll(now)
+
+    def poll(self, now: float, *, flush: bool = False) -> list[Tile]:
+        """Release the held tiles whose nav is complete, or stale (or all, with ``flush``)."""
+        out = []
+        while self._held:
+            tile = self._held[0]
+            if tile.nav is not None:
+                self._held.popleft()
+                out.append(self._finish(tile, tile.nav, np.ones(tile.rows, bool)))
+                continue
+            last = float(tile.ping_time[-1])
+            span = self.track.span
+            covered = span is not None and span[1] >= last
+            stale = now - last > self.max_gap_s
+            if not (covered or stale or flush or len(self._held) > self.max_held):
+                break
+            self._held.popleft()
+            sample = self.track.interpolate(tile.ping_time)
+            for r in sample.reason:
+                self.stats.reasons[r] = self.stats.reasons.get(r, 0) + 1
+            self.stats.tiles_interpolated += 1
+            out.append(self._finish(tile, sample.nav, sample.valid))
+        return out
+
+    def _finish(self, tile: Tile, nav, valid: np.ndarray) -> Tile | None:
+        valid = valid.copy()
+        jumps = nav_jumps(nav, tile.ping_time, max_speed_m_s=self.max_speed_m_s)
+        if jumps.size:
+            # the rows on both sides of a jump: position between them is unknown
+            valid[jumps] = False
+            valid[jumps + 1] = False
+            self.stats.nav_jump_pings += int(2 * jumps.size)
+        if not valid.any():
+            self.stats.tiles_without_nav += 1
+            self.stats.pings_without_nav += tile.rows
+            log.warning("%s: no usable nav for any ping; its pixels give no evidence", tile.ident)
+        elif not valid.all():
+            self.stats.pings_without_nav += int((~valid).sum())
+        # fill invalid nav rows with a harmless value so geometry stays finite; their pixels are NaN
+        nav = _fill_invalid(nav, valid, self.default_altitude_m)
+        if tile.slant:
+            alt = nav.altitude_m
+            # the ground axis of a slant tile: from 0 to the farthest slant range, same spacing
+            cols = int(math.floor((tile.range0_m + tile.dr_m * (tile.cols - 1)) / tile.dr_m + 1e-9)) + 1
+            tile = tile.with_nav(nav).ground_range(alt, range0_m=0.0, cols=cols)
+        else:
+            tile = tile.with_nav(nav)
+        if not valid.all():
+            px = tile.pixels.copy()
+            px[~valid] = np.nan
+            tile = tile.replace(pixels=px)
+        return tile
+
+
+def _fill_invalid(nav, valid: np.ndarray, default_altitude_m: float):
+    from ..records.tile import TileNav
+
+    if valid.all():
+        return nav
+    arrays = []
+    for a, fallback in ((nav.lat_deg, 0.0), (nav.lon_deg, 0.0), (nav.heading_deg, 0.0),
+                        (nav.altitude_m, default_altitude_m)):
+        a = a.copy()
+        good = valid & np.isfinite(a)
+        if good.any():
+            idx = np.flatnonzero(good)
+            a[~good] = np.interp(np.flatnonzero(~good), idx, a[idx])
+        else:
+            a[:] = fallback
+        arrays.append(a)
+    return TileNav(*arrays)

@@ -1,0 +1,148 @@
+"""The outputs to the autonomy layer (ICD section 3), frame by frame.
+
+ZeroMQ PUB socket; every message is two frames::
+
+    frame 0: topic, ASCII: b"contact" or b"heartbeat"
+    frame 1: msgpack map (``packb(..., use_bin_type=True)``):
+
+    contact   {type "contact", v 1, id int, state "new"|"update"|"withdrawn", t float,
+               lat_deg, lon_deg, east_m, north_m, sigma_m, bel, pl, m_theta: float,
+               looks int, detections int, detectors [str], legs [int]}
+    heartbeat {type "heartbeat", v 1, t, uptime_s: float, tiles_in, tiles_done,
+               tiles_dropped, tiles_rejected, queue_depth: int,
+               latency_ms {p50, p99: float}, mode "nominal"|"degraded"}
+
+This module is the only place that knows the layout: the node builds messages with
+:func:`contact_message` / :func:`heartbeat_message`, subscribers and tests check them with
+:func:`validate_contact` / :func:`validate_heartbeat`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping, Sequence
+
+import msgpack
+
+WIRE_VERSION = 1
+TOPIC_CONTACT = b"contact"
+TOPIC_HEARTBEAT = b"heartbeat"
+
+CONTACT_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "type": str, "v": int, "id": int, "state": str, "t": float, "lat_deg": float, "lon_deg": float,
+    "east_m": float, "north_m": float, "sigma_m": float, "bel": float, "pl": float, "m_theta": float,
+    "looks": int, "detections": int, "detectors": list, "legs": list,
+}
+HEARTBEAT_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "type": str, "v": int, "t": float, "uptime_s": float, "tiles_in": int, "tiles_done": int,
+    "tiles_dropped": int, "tiles_rejected": int, "queue_depth": int, "latency_ms": dict, "mode": str,
+}
+CONTACT_STATES = ("new", "update", "withdrawn")
+MODES = ("nominal", "degraded")
+
+
+def contact_message(*, id: int, state: str, t: float, lat_deg: float, lon_deg: float, east_m: float,
+                    north_m: float, sigma_m: float, bel: float, pl: float, m_theta: float, looks: int,
+                    detections: int, detectors: Sequence[str], legs: Sequence[int]) -> dict[str, Any]:
+    """The ICD ``contact`` map, with every field of its declared type."""
+    m = {"type": "contact", "v": WIRE_VERSION, "id": int(id), "state": str(state), "t": float(t),
+         "lat_deg": float(lat_deg), "lon_deg": float(lon_deg), "east_m": float(east_m),
+         "north_m": float(north_m), "sigma_m": float(sigma_m), "bel": float(bel), "pl": float(pl),
+         "m_theta": float(m_theta), "looks": int(looks), "detections": int(detections),
+         "detectors": [str(d) for d in detectors], "legs": [int(x) for x in legs]}
+    problems = validate_contact(m)
+    if problems:
+        raise ValueError(f"contact {id}: {'; '.join(problems)}")
+    return m
+
+
+def heartbeat_message(*, t: float, uptime_s: float, tiles_in: int, tiles_done: int, tiles_dropped: int,
+                      tiles_rejected: int, queue_depth: int, p50_ms: float, p99_ms: float,
+                      mode: str) -> dict[str, Any]:
+    """The ICD ``heartbeat`` map."""
+    return {"type": "heartbeat", "v": WIRE_VERSION, "t": float(t), "uptime_s": float(uptime_s),
+            "tiles_in": int(tiles_in), "tiles_done": int(tiles_done), "tiles_dropped": int(tiles_dropped),
+            "tiles_rejected": int(tiles_rejected), "queue_depth": int(queue_depth),
+            "latency_ms": {"p50": float(p50_ms), "p99": float(p99_ms)}, "mode": str(mode)}
+
+
+def _check_fields(m: Any, fields: Mapping[str, Any], kind: str) -> list[str]:
+    if not isinstance(m, Mapping):
+        return [f"expected a map, got {type(m).__name__}"]
+    problems = []
+    for k, tp in fields.items():
+        if k not in m:
+            problems.append(f"missing '{k}'")
+            continue
+        v = m[k]
+        if tp is float:
+            ok = isinstance(v, float)
+        elif tp is int:
+            ok = isinstance(v, int) and not isinstance(v, bool)
+        else:
+            ok = isinstance(v, tp)
+        if not ok:
+            problems.append(f"'{k}' should be {getattr(tp, '__name__', tp)}, got {type(v).__name__}")
+    extra = set(m) - set(fields)
+    if extra:
+        problems.append(f"unexpected keys {sorted(extra)}")
+    if not problems:
+        if m["type"] != kind:
+            problems.append(f"type should be '{kind}'")
+        if m["v"] != WIRE_VERSION:
+            problems.append(f"v should be {WIRE_VERSION}")
+    return problems
+
+
+def validate_contact(m: Any) -> list[str]:
+    """Problems that keep ``m`` from being an ICD v1 contact (empty when it is one)."""
+    problems = _check_fields(m, CONTACT_FIELDS, "contact")
+    if problems:
+        return problems
+    if m["state"] not in CONTACT_STATES:
+        problems.append(f"state {m['state']!r} not in {CONTACT_STATES}")
+    for k in ("lat_deg", "lon_deg", "east_m", "north_m", "sigma_m", "bel", "pl", "m_theta", "t"):
+        if not math.isfinite(m[k]):
+            problems.append(f"'{k}' is not finite")
+    if not problems:
+        if not (-90 <= m["lat_deg"] <= 90 and -180 <= m["lon_deg"] <= 180):
+            problems.append("position outside WGS84 range")
+        if not (0.0 <= m["bel"] <= m["pl"] <= 1.0 + 1e-12):
+            problems.append(f"need 0 <= bel <= pl <= 1, got bel={m['bel']} pl={m['pl']}")
+        if abs(m["bel"] + (1.0 - m["pl"]) + m["m_theta"] - 1.0) > 1e-9:
+            problems.append("bel + (1 - pl) + m_theta != 1")
+        if m["sigma_m"] < 0 or m["looks"] < 0 or m["detections"] < 0:
+            problems.append("negative sigma_m, looks or detections")
+        if not all(isinstance(d, str) for d in m["detectors"]):
+            problems.append("detectors must be strings")
+        if not all(isinstance(x, int) and not isinstance(x, bool) for x in m["legs"]):
+            problems.append("legs must be integers")
+    return problems
+
+
+def validate_heartbeat(m: Any) -> list[str]:
+    """Problems that keep ``m`` from being an ICD v1 heartbeat (empty when it is one)."""
+    problems = _check_fields(m, HEARTBEAT_FIELDS, "heartbeat")
+    if problems:
+        return problems
+    lat = m["latency_ms"]
+    if set(lat) != {"p50", "p99"} or not all(isinstance(lat[k], float) for k in ("p50", "p99")):
+        problems.append("latency_ms must be {p50: float, p99: float}")
+    if m["mode"] not in MODES:
+        problems.append(f"mode {m['mode']!r} not in {MODES}")
+    for k in ("tiles_in", "tiles_done", "tiles_dropped", "tiles_rejected", "queue_depth"):
+        if m[k] < 0:
+            problems.append(f"'{k}' is negative")
+    return problems
+
+
+def encode(topic: bytes, message: Mapping[str, Any]) -> list[bytes]:
+    """The two frames of a message."""
+    return [topic, msgpack.packb(dict(message), use_bin_type=True)]
+
+
+def decode(frames: Sequence[bytes]) -> tuple[str, dict[str, Any]]:
+    """(topic, map) of two received frames."""
+    if len(frames) != 2:
+        raise ValueError(f"expected 2 frames (topic, msgpack map), got {len(frames)}")
+    return frames[0].decode("ascii"), msgpack.unpackb(frames[1], raw=False)
