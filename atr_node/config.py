@@ -158,9 +158,40 @@ class SimulationSettings:
     ph: float = 8.1
     sea_state: float = 1.0
     source_level_db: float = 210.0
-    target_strength_db: float = -15.0
+    target_strength_db: float = -30.0
+    """Scattering strength of a target's surface, dB re 1 m^2 per m^2 (echo of a facet at
+    normal incidence filling a slant-range cell)."""
+    multipath_db: float = 15.0
+    """Multipath floor of shadows, this many dB below the background."""
+    mission_legs: int = 4
+    """Synthetic missions (``atr-node simulate``): survey legs of the lawnmower."""
+    mission_leg_length_m: float = 200.0
+    mission_swath_m: float = 50.0
+    """Ground swath per side; legs are spaced by it, so most of the area is seen twice."""
+    mission_targets: int = 16
+    mission_shapes: tuple[str, ...] = ("cylinder", "cone", "wedge")
+    mission_tile_pings: int = 256
+    mission_clutter_per_km2: float = 2000.0
+    """Rocks and other clutter, fixed in the world (seen at the same place on every leg)."""
+    mission_ripples: bool = False
+    """Add sand-ripple fields (the "hard" variant turns them on, with dense clutter)."""
+    mission_nav_error_m: float = 1.0
+    """1-sigma of the per-leg navigation offset (the tile nav differs from the truth)."""
+    mission_speed_m_s: float = 2.0
+    mission_origin_lat_deg: float = 44.08
+    mission_origin_lon_deg: float = 9.85
 
     def __post_init__(self) -> None:
+        _check(self.mission_legs >= 1, "simulation.mission_legs", "must be >= 1")
+        _check(self.mission_leg_length_m > 0, "simulation.mission_leg_length_m", "must be > 0")
+        _check(self.mission_swath_m > 0, "simulation.mission_swath_m", "must be > 0")
+        _check(self.mission_targets >= 0, "simulation.mission_targets", "must be >= 0")
+        _check(len(self.mission_shapes) >= 1, "simulation.mission_shapes", "must name at least one shape")
+        _check(self.mission_tile_pings >= 16, "simulation.mission_tile_pings", "must be >= 16")
+        _check(self.mission_clutter_per_km2 >= 0, "simulation.mission_clutter_per_km2", "must be >= 0")
+        _check(self.mission_nav_error_m >= 0, "simulation.mission_nav_error_m", "must be >= 0")
+        _check(self.mission_speed_m_s > 0, "simulation.mission_speed_m_s", "must be > 0")
+        _check(-80.0 <= self.mission_origin_lat_deg <= 80.0, "simulation.mission_origin_lat_deg", "must be in [-80, 80]")
         _check(1 <= self.subrays <= 16, "simulation.subrays", "must be in [1, 16]")
         _check(-2.0 <= self.temperature_c <= 40.0, "simulation.temperature_c", "must be in [-2, 40]")
         _check(0.0 <= self.salinity_psu <= 45.0, "simulation.salinity_psu", "must be in [0, 45]")
@@ -181,9 +212,22 @@ class CalibrationSettings:
     online_tiles: int = 8
     """On-line calibration uses this many first tiles of the mission."""
     seed: int = 0
+    smoothing: Literal["jeffreys", "laplace"] = "jeffreys"
+    """Pseudo-counts of the survival functions and Pd: Jeffreys (1/2) or Laplace (1)."""
+    confidence_points: int = 64
+    """Points of the tabulated confidence c(gamma; tau) from tau to the largest response."""
+    online_iterations: int = 10
+    """Injection iterations per tile of the on-line calibration (fewer than off-line)."""
+    online_switch_tile: int = 0
+    """Replays switch to the on-line model at this tile count (0: 2 x online_tiles), waiting
+    for the worker if needed, so the same log gives the same contacts."""
 
     def __post_init__(self) -> None:
         _check(self.targets_per_image >= 1, "calibration.targets_per_image", "must be >= 1")
+        _check(self.confidence_points >= 2, "calibration.confidence_points", "must be >= 2")
+        _check(self.online_iterations >= 1, "calibration.online_iterations", "must be >= 1")
+        _check(self.online_switch_tile == 0 or self.online_switch_tile >= self.online_tiles,
+               "calibration.online_switch_tile", "must be 0 or >= online_tiles")
         _check(self.iterations >= 1, "calibration.iterations", "must be >= 1")
         _check(0.0 < self.prior_target < 1.0, "calibration.prior_target", "must be in (0, 1)")
         _check(0.0 < self.pd_target < 1.0, "calibration.pd_target", "must be in (0, 1)")
@@ -202,6 +246,11 @@ class FusionSettings:
     """Masses are clamped to [0, 1 - eps] so total conflict cannot occur."""
     nav_sigma_m: float = 1.0
     """1-sigma horizontal navigation uncertainty, part of the association gate."""
+    gate_sigmas: float = 2.0
+    """Association gate radius = gate_sigmas * nav_sigma_m + template length_m / 2."""
+    commit_after_obs: int = 6
+    """Chunks of an open leg untouched by this many of its later observations (tile cores)
+    are committed early, bounding the leg's transient memory; 0 = only when the leg ends."""
     report_bel: float = 0.5
     """A contact is reported where Bel(T) reaches this."""
     withdraw_bel: float = 0.4
@@ -214,6 +263,8 @@ class FusionSettings:
         _check(8 <= self.chunk_cells <= 1024, "fusion.chunk_cells", "must be in [8, 1024]")
         _check(0.0 < self.eps < 1e-2, "fusion.eps", "must be in (0, 0.01)")
         _check(self.nav_sigma_m >= 0, "fusion.nav_sigma_m", "must be >= 0")
+        _check(self.gate_sigmas >= 0, "fusion.gate_sigmas", "must be >= 0")
+        _check(self.commit_after_obs >= 0, "fusion.commit_after_obs", "must be >= 0")
         _check(0.0 < self.withdraw_bel <= self.report_bel < 1.0, "fusion.report_bel",
                "need 0 < withdraw_bel <= report_bel < 1")
 
@@ -227,6 +278,8 @@ class LinkSettings:
     nmea_url: str = ""
     """Any URL pyserial opens: /dev/ttyS1, socket://host:port, loop://, a pty path."""
     nmea_baudrate: int = 115200
+    nmea_reconnect: bool = True
+    """Reopen the NMEA port with exponential backoff when it fails or drops, instead of stopping."""
     can_interface: str = ""
     """python-can interface: socketcan aboard, virtual on the bench; empty = no CAN."""
     can_channel: str = "can0"
@@ -416,7 +469,8 @@ def default_config_path() -> Path:
 def resolve_relative(settings: Settings, name: str) -> Path:
     """A file named in the settings, relative to the settings file's folder when not absolute.
 
-    Relative names that do not exist there are looked up in the package's ``data`` folder.
+    Relative names that do not exist there are looked up in the checkout's ``config/``
+    folder, then in the package's ``data`` folder.
     """
     p = Path(name)
     if p.is_absolute():
@@ -425,4 +479,7 @@ def resolve_relative(settings: Settings, name: str) -> Path:
         cand = Path(settings.source).resolve().parent / p
         if cand.exists():
             return cand
+    cand = default_config_path().parent / p
+    if cand.exists():
+        return cand
     return Path(__file__).resolve().parent / "data" / p

@@ -44,7 +44,9 @@ class StripUnit:
     dx_m: float
     kind: str
     tiles: tuple[int, ...]
-    """seq of the tiles whose rows are in the core (for latency accounting)."""
+    """seq of the tiles whose rows are in the core."""
+    completed: tuple[int, ...] = ()
+    """seq of the tiles whose last rows are in this core: their evidence is complete with it."""
 
     @property
     def core_rows(self) -> int:
@@ -176,12 +178,14 @@ class StripAssembler:
         rows = ctx.cat(pend)
         core = slice(len(ctx), len(ctx) + n_core)
         nav = rows.nav
+        core_end = core.stop
+        in_core = np.unique(rows.src[core])
+        later = set(np.unique(rows.src[core_end:]).tolist())
         unit = StripUnit(st.mission, st.leg, st.side, st.last_seq, rows.px, rows.t,
                          TileNav(nav[:, 0].copy(), nav[:, 1].copy(), nav[:, 2].copy(), nav[:, 3].copy()), core,
-                         st.range0_m, st.dr_m, st.dx_m, st.kind,
-                         tuple(int(s) for s in np.unique(rows.src[core])))
+                         st.range0_m, st.dr_m, st.dx_m, st.kind, tuple(int(s) for s in in_core),
+                         tuple(int(s) for s in in_core if int(s) not in later))
         # the new context: the last m core rows; the new pending: the rows after the core
-        core_end = core.stop
         st.context = rows.take(slice(max(core_end - self.m, 0), core_end))
         st.pending = rows.take(slice(core_end, None))
         assert len(st.pending) == (len(pend) - n_core)

@@ -1,0 +1,136 @@
+"""Feed a recording through the node's pipeline, exactly as aboard (ICD section 6).
+
+The recording is an .atrlog (ICD section 4) or an .xtf side-scan file. Records are paced at
+their recorded times times --speed (or as fast as possible with --speed max); the pipeline
+is the on-vehicle one in replay mode: it never degrades or drops, so the same log and
+options always give the same contacts. Contacts and heartbeats are published on ZeroMQ as
+in ICD section 3; --contacts-out writes the final state of every contact as JSON lines.
+
+With --state-dir, the node snapshots there as it goes; run the same command again after a
+crash (even SIGKILL) and it resumes from the last snapshot and ends with the same contacts.
+
+Exit status: 0 at the end of the log, 1 on an error (bad config, unreadable model), 130 when
+interrupted (after a snapshot when --state-dir is given).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import logging
+import sys
+import time
+
+from ..config import load_settings
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("log", metavar="LOG", help="recording: .atrlog or .xtf")
+    parser.add_argument("--config", metavar="FILE", help="TOML settings (default: built-in defaults)")
+    parser.add_argument("--model", metavar="FILE", help="performance model (default: the one shipped)")
+    parser.add_argument("--online-calibration", choices=("on", "off"), default="on",
+                        help="calibrate on-line from the first tiles, as aboard (default: on)")
+    parser.add_argument("--speed", default="max", metavar="FACTOR|max",
+                        help="replay speed: a factor of the recorded pace (1 = real time) or max (default: max)")
+    parser.add_argument("--publish", metavar="ENDPOINT",
+                        help="ZeroMQ PUB endpoint (default: links.publish_endpoint; 'none' = do not publish)")
+    parser.add_argument("--contacts-out", metavar="FILE", help="write the final contacts as JSON lines")
+    parser.add_argument("--state-dir", metavar="DIR", help="snapshot here and resume from here after a crash")
+    parser.add_argument("--workers", type=int, default=1, choices=(0, 1),
+                        help="1: detection in a worker process (both cores); 0: one process")
+    parser.add_argument("--summary", metavar="FILE", help="write run counters and timings as JSON")
+    parser.add_argument("--quiet", action="store_true", help="no progress line")
+
+
+def _speed(text: str) -> float | None:
+    if text == "max":
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        raise SystemExit(f"atr-node replay: --speed {text!r}: expected a factor > 0 or 'max'") from None
+    if not v > 0:
+        raise SystemExit(f"atr-node replay: --speed {text!r}: expected a factor > 0 or 'max'")
+    return v
+
+
+def build_model(settings, model_path: str | None, online: str, *, deterministic: bool):
+    """The performance model to start with, and the on-line calibrator (or None)."""
+    from ..calibration.model import PerformanceModel
+
+    model = PerformanceModel.load(model_path) if model_path else PerformanceModel.shipped()
+    calibrator = None
+    if online == "on":
+        from ..calibration.online import OnlineCalibrator
+
+        calibrator = OnlineCalibrator(settings, model, deterministic=deterministic)
+    return model, calibrator
+
+
+def run(args: argparse.Namespace) -> int:
+    from hw.replay import IterLink, Paced
+
+    from ..node.service import NodeService, open_recording, write_contacts
+
+    settings = load_settings(args.config)
+    speed = _speed(args.speed)
+    model, online = build_model(settings, args.model, args.online_calibration, deterministic=True)
+    publish = args.publish if args.publish is not None else settings.links.publish_endpoint
+    publish = None if publish in ("", "none") else publish
+    service = NodeService(settings, model=model, mode="replay", workers=args.workers, online=online,
+                          publish=publish, state_dir=args.state_dir, source_name=str(args.log))
+    service.install_signal_handlers()
+    t0 = time.monotonic()
+    try:
+        skip = service.resume()
+        records = itertools.islice(open_recording(args.log), skip, None)
+        source = IterLink(records, name=str(args.log))
+        link = Paced(source, speed) if speed is not None else source
+        progress = _Progress(service, quiet=args.quiet or not sys.stderr.isatty())
+        ended = service.run(progress.wrap(link), start=skip)
+        progress.done()
+        wall = time.monotonic() - t0
+        contacts = service.pipeline.contacts
+        if args.contacts_out:
+            write_contacts(args.contacts_out, contacts)
+        summary = service.summary()
+        summary["wall_s"] = round(wall, 3)
+        summary["mpx_per_s"] = round(summary["pixels"] / 1e6 / max(wall, 1e-9), 2)
+        if args.summary:
+            with open(args.summary, "w") as fh:
+                json.dump(summary, fh, indent=2, default=str)
+        live = sum(1 for c in contacts if c["state"] != "withdrawn")
+        print(f"atr-node replay: {summary['tiles_in']} tiles in, {summary['tiles_done']} done, "
+              f"{summary['tiles_rejected']} rejected; {live} contacts ({len(contacts)} ever); "
+              f"{summary['mpx_per_s']} Mpx/s over {wall:.1f} s", file=sys.stderr)
+        return 0 if ended else 130
+    finally:
+        service.close()
+
+
+class _Progress:
+    """A one-line progress report on stderr (records, tiles, contacts, rate)."""
+
+    def __init__(self, service, *, quiet: bool) -> None:
+        self.service, self.quiet = service, quiet
+        self._last = 0.0
+        self._t0 = time.monotonic()
+
+    def wrap(self, records):
+        for rec in records:
+            yield rec
+            now = time.monotonic()
+            if not self.quiet and now - self._last > 0.5:
+                self._last = now
+                st = self.service.pipeline.stats
+                mpx = st.pixels / 1e6 / max(now - self._t0, 1e-9)
+                sys.stderr.write(f"\r  {st.records} records, {st.tiles_in} tiles, "
+                                 f"{len(self.service.pipeline.contacts)} contacts, {mpx:.1f} Mpx/s   ")
+                sys.stderr.flush()
+
+    def done(self) -> None:
+        if not self.quiet:
+            sys.stderr.write("\n")

@@ -1,0 +1,77 @@
+"""The detect stage: one strip unit in, each enabled detector's coverage and detections out.
+
+Runs in the node's worker process (or in-process with ``workers = 0``): everything it needs
+travels with the :class:`DetectJob`, and the result is small (coverage as packed bits,
+detections as records), so the main process spends its time on ingest and fusion while the
+second core scores. Pure function of its inputs: the same job gives the same result.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from ..config import DetectorSettings, TemplateSettings
+from ..detectors import Detection, find_detections, score_strip
+
+
+@dataclass(frozen=True, eq=False)
+class DetectJob:
+    """What the worker needs to score one unit's core."""
+
+    key: int
+    """Position of the unit in the node's sequence (results are consumed in this order)."""
+    pixels: np.ndarray
+    core: tuple[int, int]
+    range0_m: float
+    dr_m: float
+    dx_m: float
+    altitude_m: float
+    background: np.ndarray
+    median: np.ndarray
+    taus: dict[str, float]
+    enabled: tuple[str, ...]
+    template: TemplateSettings
+    detectors: DetectorSettings
+
+
+@dataclass(frozen=True, eq=False)
+class DetectResult:
+    key: int
+    shape: tuple[int, int]
+    """(core rows, cols)."""
+    covered_bits: dict[str, np.ndarray]
+    """Per detector, the core's covered mask (score not NaN) as ``np.packbits``."""
+    detections: dict[str, list[Detection]]
+    """Per detector, detections with rows relative to the core."""
+    seconds: float
+
+    def covered(self, detector: str) -> np.ndarray:
+        rows, cols = self.shape
+        return np.unpackbits(self.covered_bits[detector], count=rows * cols).reshape(rows, cols).astype(bool)
+
+
+def detect(job: DetectJob) -> DetectResult:
+    """Score the core of ``job`` with every enabled detector and extract detections (SPEC 2-3)."""
+    import time
+
+    t0 = time.perf_counter()
+    scores = score_strip(job.pixels, core_rows=job.core, range0_m=job.range0_m, dr_m=job.dr_m, dx_m=job.dx_m,
+                         altitude_m=job.altitude_m, template=job.template, detectors=job.detectors,
+                         enabled=job.enabled, background=job.background, median=job.median)
+    covered, dets = {}, {}
+    shape = (job.core[1] - job.core[0], job.pixels.shape[1])
+    for d in job.enabled:
+        s = scores[d]
+        covered[d] = np.packbits(~np.isnan(s))
+        dets[d] = find_detections(s, job.taus[d], detector=d, range0_m=job.range0_m, dr_m=job.dr_m,
+                                  dx_m=job.dx_m, min_extent_m=job.detectors.min_extent_m,
+                                  max_extent_m=job.detectors.max_extent_m)
+    return DetectResult(job.key, shape, covered, dets, time.perf_counter() - t0)
+
+
+def worker_init(threads: int = 1) -> None:
+    """Worker process start: one OpenCV thread (the main process has the other core)."""
+    cv2.setNumThreads(threads)

@@ -1,0 +1,340 @@
+"""The node's pipeline: link records in, contact messages out (ICD sections 1-3).
+
+::
+
+    record -+- nmea / can --> NavDecoder --> NavTrack
+            +- sonar ------> Tile.from_map (rejected: counted) --> NavMerger (nav, ground range)
+                                 --> StripAssembler (margins) --> units
+    unit --> detect (worker process: score maps, detections, coverage)
+         --> fuse (EvidenceGrid: confidence from the model, missed detections from Pd(r))
+         --> ContactTracker --> contact messages (new / update / withdrawn)
+
+The pipeline is a deterministic function of the record sequence: units are fused in the
+order they were formed, whatever the worker's timing, and the on-line calibration switch
+happens at a tile count. Two modes:
+
+- ``replay``: never degrades. When the worker falls behind, ``feed`` waits for it
+  (back-pressure), so a replay at any speed gives the same contacts.
+- ``live``: never waits. When ``node.queue_tiles`` units are in flight the node enters the
+  *degraded* mode: new units are scored at decimation 2 (four times less work, slightly
+  coarser scores); at twice that many, whole units are dropped and counted as
+  ``tiles_dropped``. It returns to nominal when the queue is below half the limit. The
+  mode is in every heartbeat.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from collections import Counter, deque
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import multiprocessing as mp
+import numpy as np
+
+from ..calibration.model import PerformanceModel
+from ..config import Settings, resolve_relative
+from ..detectors import BackgroundTracker, column_median, required_margin, window_geometry
+from ..errors import AtrError, TileError
+from ..fusion import ContactTracker, DetectionEvidence, DetectorObservation, EvidenceGrid, Observation
+from ..fusion import association_gate_m
+from ..geo import MissionFrame, tile_geometry
+from ..io.atrlog import LogRecord
+from ..records.nav import NavFix, NavTrack
+from ..records.tile import Tile
+from .detect import DetectJob, DetectResult, detect, worker_init
+from .navmerge import NavMerger
+from .strip import StripAssembler, StripUnit
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class PipelineStats:
+    records: int = 0
+    tiles_in: int = 0
+    tiles_done: int = 0
+    tiles_rejected: int = 0
+    tiles_dropped: int = 0
+    units: int = 0
+    units_degraded: int = 0
+    detect_s: float = 0.0
+    fuse_s: float = 0.0
+    pixels: int = 0
+    rejections: Counter = field(default_factory=Counter)
+    latency_s: deque = field(default_factory=lambda: deque(maxlen=2000))
+
+    def latency_ms(self) -> tuple[float, float]:
+        if not self.latency_s:
+            return 0.0, 0.0
+        a = np.asarray(self.latency_s) * 1000.0
+        return float(np.percentile(a, 50)), float(np.percentile(a, 99))
+
+
+class _MedianTracker:
+    """Per-range median m(j) with the same forgetting as the background (SPEC section 2)."""
+
+    def __init__(self, forgetting: float) -> None:
+        self.f = forgetting
+        self.m: np.ndarray | None = None
+
+    def update(self, pixels: np.ndarray) -> np.ndarray:
+        new = column_median(pixels)
+        if self.m is None or self.m.shape != new.shape:
+            self.m = new
+        else:
+            both = np.isfinite(new) & np.isfinite(self.m)
+            self.m = np.where(both, self.f * self.m + (1 - self.f) * new, np.where(np.isfinite(new), new, self.m))
+        return self.m.copy()
+
+
+class Pipeline:
+    """Records in (:meth:`feed`), contact messages out (``emit``).
+
+    Parameters
+    ----------
+    settings
+        All settings.
+    model
+        Performance model (thresholds, confidence, Pd); with ``online`` it is replaced by the
+        on-line model when that is ready.
+    emit
+        Called with every contact message (ICD section 3 map), in order.
+    workers
+        1: detection in a worker process (uses the second core); 0: in this process.
+    mode
+        ``"replay"`` (back-pressure, deterministic) or ``"live"`` (degrades, never waits).
+    online
+        An :class:`~atr_node.calibration.online.OnlineCalibrator`, or None.
+    """
+
+    def __init__(self, settings: Settings, *, model: PerformanceModel, emit: Callable[[dict], None] | None = None,
+                 workers: int = 1, mode: str = "replay", online: Any = None) -> None:
+        if mode not in ("replay", "live"):
+            raise AtrError(f"pipeline mode must be 'replay' or 'live', got {mode!r}")
+        from hw.decode import NavDecoder  # the link decoders live with the drivers
+
+        self.settings = settings
+        self.model = model
+        self.emit = emit or (lambda msg: None)
+        self.mode = mode
+        self.online = online
+        self.enabled = tuple(settings.detectors.enabled)
+        self.stats = PipelineStats()
+        self.decoder = NavDecoder(dbc=str(resolve_relative(settings, settings.links.can_dbc)))
+        self.track = NavTrack(max_gap_s=settings.node.nav_max_gap_s, default_altitude_m=settings.sensor.altitude_m)
+        self.merger = NavMerger(self.track, max_gap_s=settings.node.nav_max_gap_s,
+                                default_altitude_m=settings.sensor.altitude_m)
+        self.strips: StripAssembler | None = None
+        self.frame: MissionFrame | None = None
+        self.tracker: ContactTracker | None = None
+        self.gate_m = association_gate_m(settings.fusion, settings.template)
+        self.grid = EvidenceGrid(settings.fusion, gate_m=self.gate_m, detectors=self.enabled)
+        self._bg: dict[tuple[int, str], tuple[BackgroundTracker, _MedianTracker]] = {}
+        self._arrival: dict[tuple[str, int], float] = {}
+        self._inflight: deque[tuple[StripUnit, PerformanceModel, Future | DetectResult]] = deque()
+        self.tiles_merged = 0
+        self._strip_leg: int | None = None
+        self.degraded = False
+        self.leg: int | None = None
+        self._pool: ProcessPoolExecutor | None = None
+        if workers:
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
+                                             initializer=worker_init)
+
+    # -- input ------------------------------------------------------------------------------
+    def feed(self, rec: LogRecord) -> None:
+        """Process one record (never raises on bad input: it is counted and logged)."""
+        self.stats.records += 1
+        if rec.link == "sonar":
+            try:
+                tile = Tile.from_map(rec.msg)
+            except TileError as exc:
+                self.stats.tiles_rejected += 1
+                self.stats.rejections[f"tile field {exc.field}"] += 1
+                log.warning("rejected %s", exc)
+                return
+            self.stats.tiles_in += 1
+            self._arrival[(tile.side, tile.seq)] = time.monotonic()
+            ready = self.merger.push(tile, rec.t)
+        else:
+            for ev in self.decoder.feed(rec):
+                if isinstance(ev, NavFix):
+                    self.track.add(ev)
+                    if self.frame is None and ev.lat_deg is not None and ev.lon_deg is not None:
+                        self._init_frame(ev.lat_deg, ev.lon_deg)
+                else:  # a leg change from the vehicle's CAN bus
+                    self.leg = int(ev.leg)
+            ready = self.merger.poll(rec.t)
+        for tile in ready:
+            self._on_tile(tile)
+        self._collect(block=False)
+
+    def tick(self, now: float) -> None:
+        """Periodic work with no record: release held tiles whose INS went silent, fuse what
+        the worker finished (the live loop calls it when the links are quiet)."""
+        for tile in self.merger.poll(now):
+            self._on_tile(tile)
+        self._collect(block=False)
+
+    def finish(self) -> None:
+        """End of input: release held tiles, flush strips, drain the worker, commit every leg."""
+        for tile in self.merger.poll(math.inf, flush=True):
+            self._on_tile(tile)
+        if self.strips is not None:
+            for unit in self.strips.flush():
+                self._submit(unit)
+        self._collect(block=True)
+        self.grid.close_all()
+        self._update_contacts(self._last_t)
+        if self.online is not None:
+            self.online.end_of_input()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        if self.online is not None:
+            self.online.close()
+
+    @property
+    def inflight(self) -> int:
+        """Units in the worker, not yet fused."""
+        return len(self._inflight)
+
+    def drain(self) -> None:
+        """Wait for every unit in the worker and fuse it (before a snapshot)."""
+        self._collect(block=True)
+
+    @property
+    def queue_depth(self) -> int:
+        return len(self._inflight) + self.merger.held
+
+    @property
+    def contacts(self) -> list[dict[str, Any]]:
+        """The final (latest) message of every contact ever published."""
+        if self.tracker is None:
+            return []
+        return [c.to_message() for c in sorted(self.tracker.history.values(), key=lambda c: c.id)]
+
+    # -- stages ---------------------------------------------------------------------------
+    _last_t = 0.0
+
+    def _init_frame(self, lat: float, lon: float) -> None:
+        self.frame = MissionFrame.from_settings(self.settings.mission, first_fix=(lat, lon))
+        self.tracker = ContactTracker(self.settings.fusion, self.frame, gate_m=self.gate_m)
+
+    def _on_tile(self, tile: Tile) -> None:
+        if self.frame is None:
+            self._init_frame(float(tile.nav.lat_deg[0]), float(tile.nav.lon_deg[0]))
+        if self.strips is None:
+            geom = window_geometry(tile.ranges_m[-1:], dr_m=tile.dr_m, dx_m=tile.dx_m,
+                                   altitude_m=float(np.median(tile.nav.altitude_m)), template=self.settings.template)
+            extra = int(math.ceil(self.settings.node.tile_margin_m / tile.dx_m))
+            self.strips = StripAssembler(required_margin(geom)[0] + extra, max_gap_s=self.settings.node.nav_max_gap_s)
+        self.tiles_merged += 1
+        if self.online is not None:
+            self.online.offer(tile)
+        if self._strip_leg is not None and tile.leg != self._strip_leg:
+            # a new leg: end the old leg's strips on both sides before any of the new leg's
+            # evidence, so the old leg is complete when the grid closes it
+            for unit in self.strips.flush():
+                self._submit(unit)
+        self._strip_leg = tile.leg
+        for unit in self.strips.push(tile):
+            self._submit(unit)
+
+    def _current_model(self) -> PerformanceModel:
+        if self.online is not None:
+            self.model = self.online.model_for(self.tiles_merged)
+        return self.model
+
+    def _submit(self, unit: StripUnit) -> None:
+        limit = self.settings.node.queue_tiles
+        if self.mode == "live":
+            depth = len(self._inflight)
+            if depth >= 2 * limit:
+                self.stats.tiles_dropped += len(unit.completed)
+                log.warning("dropped leg %d %s core of %d rows: %d units in flight", unit.leg, unit.side,
+                            unit.core_rows, depth)
+                return
+            if depth >= limit and not self.degraded:
+                self.degraded = True
+                log.warning("degraded mode: %d units in flight (limit %d)", depth, limit)
+            elif depth < limit // 2 and self.degraded:
+                self.degraded = False
+                log.warning("back to nominal mode")
+        key = (unit.leg, unit.side)
+        if key not in self._bg:
+            f = self.settings.detectors.background_forgetting
+            self._bg = {k: v for k, v in self._bg.items() if k[0] == unit.leg}  # a new leg: forget older ones
+            self._bg[key] = (BackgroundTracker(f), _MedianTracker(f))
+        bg_tracker, med_tracker = self._bg[key]
+        core_px = unit.pixels[unit.core]
+        background = bg_tracker.update(core_px)
+        median = med_tracker.update(core_px)
+        model = self._current_model()
+        taus = {d: float(model.tau.get(d, getattr(self.settings.detectors.threshold, d))) for d in self.enabled}
+        det_settings = self.settings.detectors
+        if self.degraded and det_settings.decimation == 1:
+            det_settings = dataclasses.replace(det_settings, decimation=2)
+            self.stats.units_degraded += 1
+        job = DetectJob(self.stats.units, unit.pixels, (unit.core.start, unit.core.stop), unit.range0_m, unit.dr_m,
+                        unit.dx_m, float(np.median(unit.nav.altitude_m)), background, median, taus, self.enabled,
+                        self.settings.template, det_settings)
+        self.stats.units += 1
+        self.stats.pixels += unit.core_rows * unit.pixels.shape[1]
+        if self._pool is None:
+            self._fuse(unit, model, detect(job))
+            return
+        self._inflight.append((unit, model, self._pool.submit(detect, job)))
+        if self.mode == "replay":
+            while len(self._inflight) > limit:
+                self._collect_one()
+        self._collect(block=False)
+
+    def _collect_one(self) -> None:
+        unit, model, fut = self._inflight.popleft()
+        self._fuse(unit, model, fut.result())
+
+    def _collect(self, *, block: bool) -> None:
+        while self._inflight and (block or self._inflight[0][2].done()):
+            self._collect_one()
+
+    def _fuse(self, unit: StripUnit, model: PerformanceModel, res: DetectResult) -> None:
+        t0 = time.perf_counter()
+        self.stats.detect_s += res.seconds
+        core = unit.core_tile()
+        geometry = tile_geometry(core, self.frame)
+        ranges = core.ranges_m
+        observations = []
+        for d in self.enabled:
+            dets = tuple(DetectionEvidence.from_detection(x, float(model.confidence(d, x.gamma)))
+                         for x in res.detections[d])
+            pd = np.clip(np.nan_to_num(model.pd(d, ranges), nan=0.0), 0.0, 1.0)
+            observations.append(DetectorObservation(d, res.covered(d), pd, dets))
+        t = float(unit.ping_time[unit.core][-1])
+        self._last_t = max(self._last_t, t)
+        try:
+            self.grid.add_observation(Observation(unit.leg, t, geometry, tuple(observations)))
+        except AtrError as exc:  # e.g. a leg number reused after the leg was closed
+            self.stats.rejections[f"fusion: {type(exc).__name__}"] += 1
+            log.error("leg %d %s: evidence rejected: %s", unit.leg, unit.side, exc)
+        self._update_contacts(t)
+        now = time.monotonic()
+        for seq in unit.completed:
+            arrived = self._arrival.pop((unit.side, seq), None)
+            if arrived is not None:
+                self.stats.latency_s.append(now - arrived)
+            self.stats.tiles_done += 1
+        self.stats.fuse_s += time.perf_counter() - t0
+
+    def _update_contacts(self, t: float) -> None:
+        if self.tracker is None:
+            return
+        for c in self.tracker.update(self.grid, t):
+            self.emit(c.to_message())

@@ -1,0 +1,240 @@
+"""The node as a service: a record source through the pipeline, publishing, heartbeats,
+snapshots, signals and the systemd watchdog. Shared by ``atr-node run`` and ``atr-node replay``.
+
+Operations (ICD section 6, SPEC section 7):
+
+- Heartbeat at ``node.heartbeat_s`` (at least once a second) from a thread, with the
+  pipeline's counters, queue depth, latency percentiles and mode.
+- Snapshots to ``state_dir`` every ``node.snapshot_every_tiles`` tiles, taken when the worker
+  is drained, with the input position they account for (``atr_node.node.state``).
+- SIGTERM / SIGINT: stop reading, drain the worker, snapshot, exit 0; the next start resumes
+  from that snapshot. SIGKILL loses at most the work since the last snapshot, which the
+  resume redoes from the input (the live node's own recording, or the replayed log).
+- systemd: ``READY=1`` once running, ``WATCHDOG=1`` from the main loop, ``STOPPING=1``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator
+
+from ..calibration.model import PerformanceModel
+from ..config import Settings
+from ..io.atrlog import LogRecord
+from . import state as node_state
+from . import wire
+from .pipeline import Pipeline
+from .publisher import Publisher
+from .sdnotify import Notifier
+
+log = logging.getLogger(__name__)
+
+
+class NodeService:
+    """One node: a pipeline plus its publisher, heartbeat, snapshots and signal handling.
+
+    Parameters
+    ----------
+    settings, model, mode, workers, online
+        See :class:`~atr_node.node.pipeline.Pipeline`.
+    publish
+        ZeroMQ endpoint to bind the PUB socket to, or None for no publishing.
+    state_dir
+        Where snapshots go (None: no snapshots, no resume).
+    on_contact
+        Also called with every contact message (for ``--contacts-out`` and tests).
+    """
+
+    def __init__(self, settings: Settings, *, model: PerformanceModel, mode: str = "replay", workers: int = 1,
+                 online: Any = None, publish: str | None = None, state_dir: str | Path | None = None,
+                 on_contact: Callable[[dict], None] | None = None, source_name: str = "") -> None:
+        self.settings = settings
+        self.publisher = Publisher(publish) if publish else None
+        self.on_contact = on_contact
+        self.pipeline = Pipeline(settings, model=model, emit=self._emit, workers=workers, mode=mode, online=online)
+        self.state_dir = Path(state_dir) if state_dir else None
+        self.source_name = source_name
+        self.notifier = Notifier()
+        self.position = 0
+        self.resumed_from: int | None = None
+        self._stop = threading.Event()
+        self._hb_stop = threading.Event()
+        self._t0 = time.monotonic()
+        self._hb_thread: threading.Thread | None = None
+        self._last_snap_tiles = 0
+        self.snapshots = 0
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def resume(self) -> int:
+        """Restore the newest snapshot in ``state_dir`` if any; return the input position to resume at."""
+        if self.state_dir is None:
+            return 0
+        meta = node_state.load(self.state_dir, self.pipeline)
+        if meta is None:
+            return 0
+        if self.source_name and meta.get("source") and meta["source"] != self.source_name:
+            log.warning("snapshot in %s is of %s, not %s: starting afresh", self.state_dir, meta["source"],
+                        self.source_name)
+            return 0
+        self.position = self.resumed_from = int(meta["position"])
+        self._last_snap_tiles = self.pipeline.stats.tiles_in
+        log.warning("resumed from snapshot at input record %d (%d tiles in)", self.position,
+                    self.pipeline.stats.tiles_in)
+        return self.position
+
+    def install_signal_handlers(self) -> None:
+        def stop(signum, _frame):
+            log.warning("signal %d: draining and snapshotting", signum)
+            self._stop.set()
+
+        signal.signal(signal.SIGTERM, stop)
+        signal.signal(signal.SIGINT, stop)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    def run(self, records: Iterable[LogRecord], *, start: int = 0, finish: bool = True) -> bool:
+        """Feed ``records``, the input from record number ``start`` on (the resume position);
+        return True when the input ended, False when stopped by a signal (then a snapshot was
+        written and nothing flushed)."""
+        self._start_heartbeat()
+        self.notifier.ready()
+        every = self.settings.node.snapshot_every_tiles
+        ended = True
+        try:
+            for i, rec in enumerate(records, start=start):
+                self.pipeline.feed(rec)
+                self.position = i + 1
+                self.notifier.watchdog()
+                if self.state_dir is not None and self.pipeline.stats.tiles_in - self._last_snap_tiles >= every:
+                    self.snapshot()
+                if self._stop.is_set():
+                    ended = False
+                    break
+            if ended and finish:
+                self.pipeline.finish()
+                if self.state_dir is not None:
+                    self.snapshot()
+            elif not ended:
+                self.notifier.stopping()
+                if self.state_dir is not None:
+                    self.snapshot()
+        finally:
+            self._send_heartbeat()
+            self._hb_stop.set()
+            if self._hb_thread is not None:
+                self._hb_thread.join(timeout=2.0)
+        return ended
+
+    def run_live(self, link: Any, *, poll_s: float = 0.2) -> None:
+        """Feed a live link until a signal (or the link's end): never blocks longer than
+        ``poll_s`` without feeding the watchdog and letting held tiles go stale."""
+        self._start_heartbeat()
+        self.notifier.ready()
+        every = self.settings.node.snapshot_every_tiles
+        try:
+            while not self._stop.is_set() and not link.at_end:
+                rec = link.recv(timeout=poll_s)
+                if rec is not None:
+                    self.pipeline.feed(rec)
+                    self.position += 1
+                else:
+                    self.pipeline.tick(time.time())
+                self.notifier.watchdog()
+                if self.state_dir is not None and self.pipeline.stats.tiles_in - self._last_snap_tiles >= every:
+                    self.snapshot()
+            self.notifier.stopping()
+            if self.state_dir is not None:
+                self.snapshot()
+        finally:
+            self._send_heartbeat()
+            self._hb_stop.set()
+
+    def snapshot(self) -> None:
+        self.pipeline.drain()
+        node_state.save(self.state_dir, self.pipeline, position=self.position, source=self.source_name)
+        self._last_snap_tiles = self.pipeline.stats.tiles_in
+        self.snapshots += 1
+
+    def close(self) -> None:
+        self._hb_stop.set()
+        self.pipeline.close()
+        if self.publisher is not None:
+            self.publisher.close()
+        self.notifier.close()
+
+    # -- outputs -----------------------------------------------------------------------------
+    def _emit(self, msg: dict) -> None:
+        if self.publisher is not None:
+            self.publisher.contact(msg)
+        if self.on_contact is not None:
+            self.on_contact(msg)
+
+    def heartbeat(self) -> dict[str, Any]:
+        st = self.pipeline.stats
+        p50, p99 = st.latency_ms()
+        return wire.heartbeat_message(t=time.time(), uptime_s=time.monotonic() - self._t0, tiles_in=st.tiles_in,
+                                      tiles_done=st.tiles_done, tiles_dropped=st.tiles_dropped,
+                                      tiles_rejected=st.tiles_rejected, queue_depth=self.pipeline.queue_depth,
+                                      p50_ms=p50, p99_ms=p99, mode="degraded" if self.pipeline.degraded else "nominal")
+
+    def _send_heartbeat(self) -> None:
+        if self.publisher is not None:
+            self.publisher.heartbeat(self.heartbeat())
+
+    def _start_heartbeat(self) -> None:
+        if self.publisher is None or self._hb_thread is not None:
+            return
+        period = self.settings.node.heartbeat_s
+
+        def loop() -> None:
+            while not self._hb_stop.wait(period):
+                try:
+                    self._send_heartbeat()
+                except Exception as exc:  # a heartbeat must never take the node down
+                    log.warning("heartbeat failed: %s", exc)
+
+        self._hb_thread = threading.Thread(target=loop, name="atr-heartbeat", daemon=True)
+        self._hb_thread.start()
+
+    def summary(self) -> dict[str, Any]:
+        st = self.pipeline.stats
+        p50, p99 = st.latency_ms()
+        return {"records": st.records, "tiles_in": st.tiles_in, "tiles_done": st.tiles_done,
+                "tiles_rejected": st.tiles_rejected, "tiles_dropped": st.tiles_dropped, "units": st.units,
+                "units_degraded": st.units_degraded, "pixels": st.pixels, "detect_s": round(st.detect_s, 3),
+                "fuse_s": round(st.fuse_s, 3), "latency_p50_ms": round(p50, 1), "latency_p99_ms": round(p99, 1),
+                "contacts": len(self.pipeline.contacts), "nav": self.pipeline.decoder.stats(),
+                "navmerge": vars(self.pipeline.merger.stats), "rejections": dict(st.rejections),
+                "snapshots": self.snapshots, "resumed_from": self.resumed_from}
+
+
+def write_contacts(path: str | Path, contacts: list[dict]) -> None:
+    """``--contacts-out``: the final state of every contact, one JSON object per line."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.tmp")
+    with open(tmp, "w") as fh:
+        for c in contacts:
+            fh.write(json.dumps(c, sort_keys=True) + "\n")
+    tmp.replace(p)
+
+
+def open_recording(path: str | Path) -> Iterator[LogRecord]:
+    """Records of an .atrlog or an .xtf file, for replay."""
+    p = str(path)
+    if p.lower().endswith(".xtf"):
+        from ..io.xtf import iter_xtf_records
+
+        return iter(iter_xtf_records(p))
+    from ..io.atrlog import read_atrlog
+
+    return read_atrlog(p)

@@ -1,0 +1,191 @@
+"""Node snapshots: everything needed to restart where the node stopped, written atomically.
+
+A snapshot is a folder ``snap-<n>`` in the node's state directory holding
+
+- ``grid.npz``: the evidence grid and the contact tracker (``atr_node.fusion.snapshot``);
+- ``node.npz``: strips (pending and context rows), the INS track, background trackers, the
+  mission frame, counters, the on-line model if one took over, and ``position``: how many
+  input records the snapshot accounts for;
+
+and the file ``CURRENT`` names the newest complete snapshot. A new snapshot is written to a
+fresh folder, flushed and fsync'ed, and only then does ``CURRENT`` change, by an atomic
+rename; older folders are removed after. A crash at any point leaves ``CURRENT`` naming a
+complete snapshot (or no file at all before the first one).
+
+Snapshots are taken only when nothing is in flight (no held tile, no unit in the worker), so
+the state is consistent; on restart the input is resumed at ``position`` (a replay skips that
+many records; the live node replays its own recording past that point first), so no accepted
+tile's evidence is lost and none is counted twice.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..calibration.model import PerformanceModel
+from ..errors import AtrError
+from ..fusion import ContactTracker
+from ..fusion import snapshot as grid_snapshot
+from ..geo import MissionFrame
+from ..detectors import BackgroundTracker
+from .strip import StripAssembler
+
+FORMAT = "atr-node node state"
+VERSION = 1
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def save(state_dir: str | os.PathLike[str], pipeline: Any, *, position: int, source: str = "") -> Path:
+    """Write a snapshot of ``pipeline`` (which must be quiescent) and make it current."""
+    if pipeline.inflight:
+        raise AtrError("snapshot: the pipeline still has units in the worker; drain it first")
+    root = Path(state_dir)
+    root.mkdir(parents=True, exist_ok=True)
+    current = read_current(root)
+    n = (int(current.name.split("-")[1]) + 1) if current is not None else 1
+    folder = root / f"snap-{n}"
+    if folder.exists():
+        shutil.rmtree(folder)
+    folder.mkdir()
+    grid_snapshot.save(folder / "grid.npz", pipeline.grid, pipeline.tracker)
+    arrays, meta = _node_arrays(pipeline)
+    meta.update(format=FORMAT, version=VERSION, position=int(position), source=source)
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+    with open(folder / "node.npz", "wb") as fh:
+        np.savez(fh, **arrays)
+        fh.flush()
+        os.fsync(fh.fileno())
+    _fsync_dir(folder)
+    tmp = root / f".CURRENT.tmp-{os.getpid()}"
+    tmp.write_text(folder.name + "\n")
+    with open(tmp, "rb+") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, root / "CURRENT")
+    _fsync_dir(root)
+    for old in root.glob("snap-*"):
+        if old != folder:
+            shutil.rmtree(old, ignore_errors=True)
+    return folder
+
+
+def read_current(state_dir: str | os.PathLike[str]) -> Path | None:
+    root = Path(state_dir)
+    try:
+        name = (root / "CURRENT").read_text().strip()
+    except FileNotFoundError:
+        return None
+    folder = root / name
+    return folder if name.startswith("snap-") and folder.is_dir() else None
+
+
+def load(state_dir: str | os.PathLike[str], pipeline: Any) -> dict[str, Any] | None:
+    """Restore ``pipeline`` from the current snapshot; return its meta (None: no snapshot)."""
+    folder = read_current(state_dir)
+    if folder is None:
+        return None
+    try:
+        with np.load(folder / "node.npz", allow_pickle=False) as z:
+            a = {k: z[k] for k in z.files}
+        meta = json.loads(a.pop("meta").tobytes().decode())
+    except (OSError, ValueError, KeyError) as exc:
+        raise AtrError(f"node snapshot {folder}: unreadable ({type(exc).__name__}: {exc})") from None
+    if meta.get("format") != FORMAT or meta.get("version") != VERSION:
+        raise AtrError(f"node snapshot {folder}: format {meta.get('format')!r} v{meta.get('version')!r}, "
+                       f"expected {FORMAT!r} v{VERSION}")
+    grid, tracker_state = grid_snapshot.load(folder / "grid.npz")
+    pipeline.grid = grid
+    if meta["frame"] is not None:
+        pipeline.frame = MissionFrame.from_dict(meta["frame"])
+        pipeline.tracker = ContactTracker(pipeline.settings.fusion, pipeline.frame, gate_m=pipeline.gate_m)
+        if tracker_state is not None:
+            pipeline.tracker.restore(tracker_state)
+    _restore_node(pipeline, a, meta)
+    return meta
+
+
+def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    arrays: dict[str, np.ndarray] = {}
+    meta: dict[str, Any] = {
+        "frame": p.frame.to_dict() if p.frame is not None else None,
+        "tiles_merged": p.tiles_merged, "leg": p.leg, "strip_leg": p._strip_leg,
+        "stats": {k: getattr(p.stats, k) for k in ("records", "tiles_in", "tiles_done", "tiles_rejected",
+                                                    "tiles_dropped", "units", "units_degraded", "pixels")},
+        "model": p.model.to_dict() if getattr(p, "online", None) is not None else None,
+        "online_done": bool(getattr(p.online, "_done", False)) if getattr(p, "online", None) is not None else None,
+        "strips": None, "bg": [],
+    }
+    for k, v in p.track.state().items():
+        if isinstance(v, np.ndarray):
+            arrays[f"track_{k}"] = v
+        else:
+            meta[f"track_{k}"] = v
+    if p.strips is not None:
+        st = p.strips.state()
+        meta["strips"] = {"margin": p.strips.m, "max_gap_s": p.strips.max_gap_s, "sides": {}}
+        for side, d in st.items():
+            meta["strips"]["sides"][side] = {k: v for k, v in d.items() if k not in ("context", "pending")}
+            for name in ("context", "pending"):
+                for k, arr in d[name].items():
+                    arrays[f"strip_{side}_{name}_{k}"] = arr
+    meta["held"] = len(p.merger._held)
+    for i, tile in enumerate(p.merger._held):
+        arrays[f"held_{i}"] = np.frombuffer(tile.pack(), dtype=np.uint8)
+    for i, ((leg, side), (bg, med)) in enumerate(p._bg.items()):
+        meta["bg"].append([leg, side])
+        arrays[f"bg_{i}_b"] = bg.background if bg.background is not None else np.zeros(0)
+        arrays[f"bg_{i}_m"] = med.m if med.m is not None else np.zeros(0)
+    return arrays, meta
+
+
+def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+    track = {k[len("track_"):]: v for k, v in a.items() if k.startswith("track_")}
+    track.update({k[len("track_"):]: v for k, v in meta.items() if k.startswith("track_")})
+    p.track.restore(track)
+    p.tiles_merged = int(meta["tiles_merged"])
+    p._strip_leg = meta.get("strip_leg")
+    p.leg = meta["leg"]
+    for k, v in meta["stats"].items():
+        setattr(p.stats, k, v)
+    if meta.get("model") is not None:
+        p.model = PerformanceModel.from_dict(meta["model"], where="node snapshot")
+        if p.online is not None and meta.get("online_done"):
+            p.online.close()
+            p.online = None  # the on-line model had taken over: keep it
+    if meta["strips"] is not None:
+        s = meta["strips"]
+        p.strips = StripAssembler(int(s["margin"]), max_gap_s=float(s["max_gap_s"]))
+        state = {}
+        for side, d in s["sides"].items():
+            d = dict(d)
+            for name in ("context", "pending"):
+                d[name] = {k: a[f"strip_{side}_{name}_{k}"] for k in ("px", "t", "nav", "src")}
+            state[side] = d
+        p.strips.restore(state)
+    from ..records.tile import Tile
+    from .pipeline import _MedianTracker
+
+    p.merger._held.clear()
+    for i in range(int(meta.get("held", 0))):
+        p.merger._held.append(Tile.unpack(a[f"held_{i}"].tobytes()))
+
+    p._bg = {}
+    f = p.settings.detectors.background_forgetting
+    for i, (leg, side) in enumerate(meta["bg"]):
+        bg, med = BackgroundTracker(f), _MedianTracker(f)
+        b, m = a[f"bg_{i}_b"], a[f"bg_{i}_m"]
+        bg._b = b if b.size else None
+        med.m = m if m.size else None
+        p._bg[(int(leg), side)] = (bg, med)
