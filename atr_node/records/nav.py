@@ -155,6 +155,24 @@ class NavTrack:
         for s in (self._pos, self._hdg, self._alt):
             s.drop_before(t)
 
+    def state(self) -> dict:
+        """Plain arrays for a snapshot."""
+        return {"pos_t": self._pos.times.copy(), "pos_v": self._pos.values.copy(),
+                "hdg_t": self._hdg.times.copy(), "hdg_v": self._hdg.values.copy(),
+                "alt_t": self._alt.times.copy(), "alt_v": self._alt.values.copy(),
+                "fixes": self.fixes, "jumps": self.jumps}
+
+    def restore(self, state: dict) -> None:
+        for name, series in (("pos", self._pos), ("hdg", self._hdg), ("alt", self._alt)):
+            t = np.asarray(state[f"{name}_t"], dtype=np.float64)
+            v = np.asarray(state[f"{name}_v"], dtype=np.float64).reshape(t.size, -1)
+            cap = max(64, 1 << int(np.ceil(np.log2(max(t.size, 1)))))
+            series.t = np.empty(cap)
+            series.v = np.empty((cap, series.v.shape[1]))
+            series.t[:t.size], series.v[:t.size] = t, v
+            series.n = t.size
+        self.fixes, self.jumps = int(state["fixes"]), int(state["jumps"])
+
     @property
     def span(self) -> tuple[float, float] | None:
         """First and last position fix time."""
