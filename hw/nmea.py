@@ -1,4 +1,4 @@
-"""NMEA 0183 codec: sentence encoder and the stateful decoder to :class:`NavFix` (ICD section 2).
+"""NMEA 0183 wire format: sentence encoder and framing check (ICD section 2).
 
 Wire form of one sentence (IEC 61162-1), at most 82 characters including ``$`` and CR LF::
 
@@ -21,21 +21,19 @@ DPT   depth below transducer, offset, max range               altitude_m (downwa
 
 The encoder side (``format_sentence`` and ``encode_*``) takes SI values (UNIX seconds, degrees,
 metres, m/s) and is what the simulation uses to write NMEA records into generated missions.
-Decoding never raises on bad input: every line is either accepted or counted under a reason
-(``too_long``, ``bad_checksum``, ``garbage``, ``unsupported``, ``bad_field``, ``invalid``,
-``no_date``) and dropped.
+:func:`parse_sentence` checks one line (length, framing, checksum) and splits it; the stateful
+:class:`hw.nmea_decoder.NmeaDecoder` (re-exported here) turns sentences into ``NavFix`` and
+never raises on bad input: every line is accepted or counted under a reason (``too_long``,
+``bad_checksum``, ``garbage``, ``unsupported``, ``bad_field``, ``invalid``, ``no_date``).
 """
 
 from __future__ import annotations
 
 import math
 import re
-from collections import Counter
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from typing import Sequence
-
-from atr_node.records.nav import NavFix
 
 from .errors import NmeaError
 
@@ -182,3 +180,68 @@ def encode_dpt(altitude_m: float, *, offset_m: float = 0.0, max_range_m: float |
     if max_range_m is not None:
         fields.append(_num(max_range_m, 1, "max_range_m"))
     return format_sentence(talker + "DPT", fields)
+
+
+# --- framing check ----------------------------------------------------------------------------
+
+REJECT_REASONS = ("too_long", "bad_checksum", "garbage", "unsupported", "bad_field", "invalid", "no_date")
+
+
+@dataclass(frozen=True)
+class Sentence:
+    """A framed sentence whose checksum verified: address split into talker and type."""
+
+    talker: str
+    type: str
+    fields: tuple[str, ...]
+
+
+class NmeaReject(NmeaError):
+    """A line that is not an acceptable sentence; ``reason`` is one of :data:`REJECT_REASONS`."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        self.reason = reason
+        super().__init__(f"{reason}: {detail}")
+
+
+def parse_sentence(line: bytes) -> Sentence:
+    """Check framing, length and checksum of one line and split it into fields.
+
+    Parameters
+    ----------
+    line
+        One sentence, with or without CR LF.
+
+    Raises
+    ------
+    NmeaReject
+        With ``reason`` ``too_long``, ``garbage`` or ``bad_checksum``.
+    """
+    body = line.rstrip(b"\r\n")
+    if len(body) + 2 > MAX_SENTENCE_CHARS:
+        raise NmeaReject("too_long", f"{len(body) + 2} characters, at most {MAX_SENTENCE_CHARS}")
+    if not body.startswith(b"$"):
+        raise NmeaReject("garbage", f"expected '$' at the start, got {body[:12]!r}")
+    star = body.rfind(b"*")
+    if star < 0 or len(body) - star != 3:
+        raise NmeaReject("bad_checksum", f"expected '*hh' at the end, got {body[-6:]!r}")
+    try:
+        text = body[1:star].decode("ascii")
+    except UnicodeDecodeError:
+        raise NmeaReject("garbage", f"non-ASCII bytes in {body[:24]!r}") from None
+    try:
+        want = int(body[star + 1:], 16)
+    except ValueError:
+        raise NmeaReject("bad_checksum", f"checksum {body[star + 1:]!r} is not two hex digits") from None
+    got = checksum(body[1:star])
+    if got != want:
+        raise NmeaReject("bad_checksum", f"computed {got:02X}, sentence says {want:02X}")
+    address, *fields = text.split(",")
+    if not _ADDRESS.match(address):
+        raise NmeaReject("garbage", f"address {address!r}: expected talker + type like 'GPGGA'")
+    if address.startswith("P"):  # proprietary: manufacturer code, no talker id
+        return Sentence(talker="P", type=address[1:], fields=tuple(fields))
+    return Sentence(talker=address[:2], type=address[2:], fields=tuple(fields))
+
+
+from .nmea_decoder import NmeaDecoder  # noqa: E402  (re-export; it builds on the names above)

@@ -6,6 +6,7 @@
   ``2014-08-01T00:00:00.183000Z $HEHDT,218.53,T*12`` per line) as ``nmea`` records.
 * :class:`CandumpLink` plays a ``candump -l`` log (``(1502984866.429162) can0 09F10DCC#FCF8...``,
   ``#`` comment lines skipped) as ``can`` records, parsing each line with python-can.
+* :class:`TimeMerge` merges several recordings into one stream ordered by ``t``.
 * :class:`Paced` wraps any link and releases each record when its ``t`` is due on the wall
   clock: at 1x, at any factor, or (``speed=None``) as fast as the consumer takes them.
 
@@ -42,7 +43,8 @@ class ReplayLink(Link):
     path
         The log file.
     links
-        Keep only these link kinds (``"sonar"``, ``"nmea"``, ``"can"``); None = all.
+        Keep only these link kinds (``"sonar"``, ``"nmea"``, ``"can"``, or a comma-separated
+        string of them); None = all.
     strict
         Raise on a malformed record instead of skipping it with a warning.
 
@@ -59,6 +61,8 @@ class ReplayLink(Link):
         super().__init__(str(path))
         if not os.path.isfile(path):
             raise LinkSpecError(f"replay link: {path}: no such file; expected an .atrlog recording")
+        if isinstance(links, str):  # from a URL query string: links=nmea,can
+            links = [x for x in links.split(",") if x]
         self.links = None if links is None else frozenset(links)
         if self.links is not None and not self.links <= set(LINKS):
             raise LinkSpecError(f"replay link {path}: links {sorted(self.links)}: expected a subset of {list(LINKS)}")
@@ -243,3 +247,38 @@ class Paced(Link):
 
     def _shutdown_internal(self) -> None:
         self.inner.shutdown()
+
+
+class TimeMerge(Link):
+    """Several recordings merged into one stream in ``t`` order (a k-way merge).
+
+    Each input must itself be in ``t`` order (a recording is); ties keep the order of
+    ``links``. Meant for finite recordings: a live link that stays silent holds the merge.
+    """
+
+    kind = "*"
+
+    def __init__(self, links: Iterable[Link]) -> None:
+        self.links = list(links)
+        if not self.links:
+            raise LinkSpecError("time merge: expected at least one recording")
+        super().__init__("+".join(l.name for l in self.links))
+        self._heads: list[LogRecord | None] = [None] * len(self.links)
+
+    def _recv_internal(self, timeout: float) -> LogRecord | None:
+        for i, link in enumerate(self.links):
+            if self._heads[i] is None and not link.at_end:
+                self._heads[i] = link.recv(timeout)
+                if self._heads[i] is None and not link.at_end:
+                    return None  # this input has not delivered yet: its next record may be the earliest
+        live = [(rec.t, i) for i, rec in enumerate(self._heads) if rec is not None]
+        if not live:
+            self.at_end = True
+            return None
+        _, i = min(live)
+        rec, self._heads[i] = self._heads[i], None
+        return rec
+
+    def _shutdown_internal(self) -> None:
+        for link in self.links:
+            link.shutdown()

@@ -104,7 +104,7 @@ class AtrLogReader:
             try:
                 obj = unpacker.unpack()
             except msgpack.OutOfData:
-                end = unpacker.tell()
+                end = offset  # end of the last complete record (tell() may be past it here)
                 if size is not None and end < size:
                     self.truncated = True
                     msg = f"{path}: truncated last record at byte {end} ({size - end} bytes ignored)"

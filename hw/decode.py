@@ -1,0 +1,62 @@
+"""One entry point from link records to navigation: :class:`NavDecoder`.
+
+The pipeline feeds every record it receives (live or replayed) and gets back what it means
+for navigation::
+
+    nmea record  -> NmeaDecoder  -> [NavFix]              (0 or 1)
+    can record   -> CanNavDecoder -> [NavFix | LegChange]  (0 or 1)
+    sonar record -> []                                     (tiles are the pipeline's business)
+
+Nothing here raises on link input; the counters say what was accepted and why the rest was
+dropped (``stats()``), for the heartbeat and the run report.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from atr_node.io.atrlog import LogRecord
+from atr_node.records.nav import NavFix
+
+from .can_nav import CanNavDecoder, LegChange
+from .nmea import NmeaDecoder
+
+NavEvent = NavFix | LegChange
+
+
+class NavDecoder:
+    """Records in, :class:`NavFix` and :class:`LegChange` out.
+
+    Parameters
+    ----------
+    dbc
+        CAN database path (None = ``config/atr_node.dbc``).
+    date_from_arrival
+        See :class:`hw.nmea.NmeaDecoder`.
+    """
+
+    def __init__(self, *, dbc: str | None = None, date_from_arrival: bool = True) -> None:
+        self.nmea = NmeaDecoder(date_from_arrival=date_from_arrival)
+        self.can = CanNavDecoder(dbc)
+
+    def feed(self, record: LogRecord) -> list[NavEvent]:
+        """Decode one record; [] when it carries no navigation or was dropped."""
+        if record.link == "nmea":
+            msg = record.msg
+            if not isinstance(msg, (bytes, bytearray)):
+                self.nmea.counts["garbage"] += 1
+                return []
+            return list(self.nmea.feed(bytes(msg), record.t))
+        if record.link == "can":
+            m = record.msg
+            try:
+                cid, data, ext = int(m["id"]), bytes(m["data"]), bool(m["ext"])
+            except (TypeError, KeyError, ValueError):
+                self.can.counts["bad_frame"] += 1
+                return []
+            return self.can.feed(cid, data, ext, record.t)
+        return []
+
+    def stats(self) -> dict[str, Any]:
+        """Counters: ``{"nmea": {...}, "nmea_types": {...}, "can": {...}}``."""
+        return {"nmea": dict(self.nmea.counts), "nmea_types": dict(self.nmea.by_type), "can": dict(self.can.counts)}

@@ -1,0 +1,217 @@
+"""Stateful NMEA 0183 decoder: sentences to :class:`NavFix` (ICD section 2).
+
+Field layouts follow IEC 61162-1 (see the table in :mod:`hw.nmea`). Times: GGA and RMC give a
+time of day, ZDA and RMC a date; sentences without time (HDT, THS, VTG, DPT) take the
+arrival time shifted by the sentence-clock offset (details in :class:`NmeaDecoder`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from datetime import datetime, timezone
+from typing import Sequence
+
+from atr_node.records.nav import NavFix
+
+from .nmea import KNOT_M_S, REJECT_REASONS, SENTENCE_TYPES, NmeaReject, parse_sentence
+
+_HALF_DAY_S = 43_200.0
+
+
+def _float(fields: Sequence[str], i: int, what: str) -> float | None:
+    """Field ``i`` as a float; None when null or absent."""
+    if i >= len(fields) or fields[i] == "":
+        return None
+    try:
+        v = float(fields[i])
+    except ValueError:
+        raise NmeaReject("bad_field", f"{what} = {fields[i]!r}: expected a number") from None
+    if not math.isfinite(v):
+        raise NmeaReject("bad_field", f"{what} = {fields[i]!r}: expected a finite number")
+    return v
+
+
+def _latlon(fields: Sequence[str], i: int) -> tuple[float, float] | None:
+    """Latitude and longitude from ``ddmm.mmm,N,dddmm.mmm,E`` starting at field ``i``."""
+    if len(fields) < i + 4 or "" in fields[i:i + 4]:
+        return None
+    out = []
+    for value, hemi, deg_digits, limit in ((fields[i], fields[i + 1], 2, 90.0),
+                                           (fields[i + 2], fields[i + 3], 3, 180.0)):
+        dot = value.find(".")
+        split = (dot if dot >= 0 else len(value)) - 2
+        if split < 1 or split > deg_digits or hemi not in (("N", "S") if deg_digits == 2 else ("E", "W")):
+            raise NmeaReject("bad_field", f"position {value!r},{hemi!r}: expected d{'d' * (deg_digits - 1)}mm.mmm,"
+                                          f"{'N/S' if deg_digits == 2 else 'E/W'}")
+        try:
+            deg, minutes = int(value[:split]), float(value[split:])
+        except ValueError:
+            raise NmeaReject("bad_field", f"position {value!r}: expected digits") from None
+        v = deg + minutes / 60.0
+        if minutes >= 60.0 or v > limit:
+            raise NmeaReject("bad_field", f"position {value!r}: out of range")
+        out.append(-v if hemi in "SW" else v)
+    return out[0], out[1]
+
+
+def _time_of_day(field: str) -> float:
+    """Seconds since midnight from ``hhmmss[.ss]``."""
+    try:
+        h, m, s = int(field[0:2]), int(field[2:4]), float(field[4:])
+    except (ValueError, IndexError):
+        raise NmeaReject("bad_field", f"time {field!r}: expected hhmmss.ss") from None
+    if len(field) < 6 or h > 23 or m > 59 or not 0.0 <= s < 61.0:
+        raise NmeaReject("bad_field", f"time {field!r}: expected hhmmss.ss")
+    return h * 3600.0 + m * 60.0 + s
+
+
+def _midnight(year: int, month: int, day: int, where: str) -> float:
+    try:
+        return datetime(year, month, day, tzinfo=timezone.utc).timestamp()
+    except ValueError:
+        raise NmeaReject("bad_field", f"{where}: no such date {year:04d}-{month:02d}-{day:02d}") from None
+
+
+class NmeaDecoder:
+    """Stateful NMEA 0183 decoder: lines in, :class:`NavFix` out (ICD section 2).
+
+    GGA and RMC carry only a time of day; the date comes from the last ZDA or RMC, and a time of
+    day more than 12 h before (after) the last dated time rolls over to the next (previous) day,
+    so fixes across midnight keep increasing. Until a date is known, the arrival time's date
+    is used (``date_from_arrival=True``) or the fix is dropped as ``no_date``. Sentences with no
+    time (HDT, THS, VTG, DPT) are stamped with their arrival time plus the offset between the
+    sentence clock and the arrival clock measured on the last timed sentence.
+
+    Attributes
+    ----------
+    counts
+        ``Counter`` with ``accepted`` and one key per reject reason (:data:`REJECT_REASONS`).
+    by_type
+        ``Counter`` of accepted sentences per type (``GGA``, ...).
+    last_reject
+        Message of the last rejected line (what and why), or ``""``.
+    """
+
+    def __init__(self, *, date_from_arrival: bool = True) -> None:
+        self.date_from_arrival = date_from_arrival
+        self.counts: Counter[str] = Counter()
+        self.by_type: Counter[str] = Counter()
+        self.last_reject = ""
+        self._last_t: float | None = None  # last dated sentence time (UNIX s)
+        self._offset_s = 0.0  # sentence clock - arrival clock
+
+    @property
+    def rejected(self) -> int:
+        return sum(self.counts[r] for r in REJECT_REASONS)
+
+    def feed(self, line: bytes, t_arrival: float) -> list[NavFix]:
+        """Decode one line received at ``t_arrival`` (UNIX s); return 0 or 1 fix. Never raises on input."""
+        try:
+            s = parse_sentence(line)
+            if s.talker == "P" or s.type not in SENTENCE_TYPES:
+                raise NmeaReject("unsupported", f"sentence type {'P' + s.type if s.talker == 'P' else s.type}")
+            fix = getattr(self, "_" + s.type.lower())(s.fields, float(t_arrival))
+        except NmeaReject as exc:
+            self.counts[exc.reason] += 1
+            self.last_reject = f"{line[:90]!r}: {exc}"
+            return []
+        self.counts["accepted"] += 1
+        self.by_type[s.type] += 1
+        return [] if fix is None else [fix]
+
+    # -- time ----------------------------------------------------------------------------------
+    def _dated(self, tod_s: float, t_arrival: float) -> float:
+        """UNIX time of a time of day, on the day nearest the last dated time."""
+        ref = self._last_t
+        if ref is None:
+            if not self.date_from_arrival:
+                raise NmeaReject("no_date", "time of day before any ZDA or RMC date")
+            ref = t_arrival + self._offset_s
+        day0 = math.floor(ref / 86_400.0) * 86_400.0
+        t = day0 + tod_s
+        if t < ref - _HALF_DAY_S:
+            t += 86_400.0
+        elif t > ref + _HALF_DAY_S:
+            t -= 86_400.0
+        return t
+
+    def _clock(self, t: float, t_arrival: float) -> None:
+        self._last_t = t
+        self._offset_s = t - t_arrival
+
+    def _untimed(self, t_arrival: float) -> float:
+        return t_arrival + self._offset_s
+
+    # -- sentences -----------------------------------------------------------------------------
+    def _gga(self, f: Sequence[str], ta: float) -> NavFix:
+        if len(f) < 9:
+            raise NmeaReject("bad_field", f"GGA with {len(f)} fields, expected at least 9")
+        quality = f[5]
+        pos = _latlon(f, 1)
+        if quality in ("", "0") or pos is None:
+            raise NmeaReject("invalid", f"GGA fix quality {quality!r} or null position")
+        t = self._dated(_time_of_day(f[0]), ta)
+        self._clock(t, ta)
+        height = _float(f, 8, "GGA altitude")
+        return NavFix(t=t, lat_deg=pos[0], lon_deg=pos[1], depth_m=None if height is None else -height,
+                      source="nmea:GGA")
+
+    def _rmc(self, f: Sequence[str], ta: float) -> NavFix:
+        if len(f) < 9:
+            raise NmeaReject("bad_field", f"RMC with {len(f)} fields, expected at least 9")
+        tod = _time_of_day(f[0])
+        d = f[8]
+        if len(d) != 6 or not d.isdigit():
+            raise NmeaReject("bad_field", f"RMC date {d!r}: expected ddmmyy")
+        yy = int(d[4:6])
+        t = _midnight(2000 + yy if yy < 80 else 1900 + yy, int(d[2:4]), int(d[0:2]), "RMC date") + tod
+        self._clock(t, ta)  # date and clock are good even when the fix is not
+        pos = _latlon(f, 2)
+        if f[1] != "A" or pos is None or (len(f) > 11 and f[11] == "N"):
+            raise NmeaReject("invalid", f"RMC status {f[1]!r} or null position")
+        sog = _float(f, 6, "RMC speed")
+        return NavFix(t=t, lat_deg=pos[0], lon_deg=pos[1], speed_m_s=None if sog is None else sog * KNOT_M_S,
+                      source="nmea:RMC")
+
+    def _zda(self, f: Sequence[str], ta: float) -> None:
+        if len(f) < 4 or "" in f[:4]:
+            raise NmeaReject("bad_field", "ZDA needs time, day, month and year")
+        try:
+            day, month, year = int(f[1]), int(f[2]), int(f[3])
+        except ValueError:
+            raise NmeaReject("bad_field", f"ZDA date {f[1:4]!r}: expected integers") from None
+        self._clock(_midnight(year, month, day, "ZDA") + _time_of_day(f[0]), ta)
+        return None
+
+    def _heading(self, f: Sequence[str], ta: float, kind: str) -> NavFix:
+        h = _float(f, 0, f"{kind} heading")
+        if h is None:
+            raise NmeaReject("invalid", f"{kind} null heading")
+        return NavFix(t=self._untimed(ta), heading_deg=h % 360.0, source=f"nmea:{kind}")
+
+    def _hdt(self, f: Sequence[str], ta: float) -> NavFix:
+        return self._heading(f, ta, "HDT")
+
+    def _ths(self, f: Sequence[str], ta: float) -> NavFix:
+        if len(f) < 2 or f[1] not in ("A", "E", "M", "S"):
+            raise NmeaReject("invalid", f"THS mode {f[1] if len(f) > 1 else None!r}, expected A, E, M or S")
+        return self._heading(f, ta, "THS")
+
+    def _vtg(self, f: Sequence[str], ta: float) -> NavFix:
+        if len(f) > 8 and f[8] == "N":
+            raise NmeaReject("invalid", "VTG mode N (data not valid)")
+        kn = _float(f, 4, "VTG speed knots")
+        sog = kn * KNOT_M_S if kn is not None else None
+        if sog is None:
+            kmh = _float(f, 6, "VTG speed km/h")
+            sog = None if kmh is None else kmh / 3.6
+        if sog is None:
+            raise NmeaReject("invalid", "VTG null speed")
+        return NavFix(t=self._untimed(ta), speed_m_s=sog, source="nmea:VTG")
+
+    def _dpt(self, f: Sequence[str], ta: float) -> NavFix:
+        d = _float(f, 0, "DPT depth")
+        if d is None or d < 0:
+            raise NmeaReject("invalid", f"DPT depth {f[0] if f else None!r}")
+        return NavFix(t=self._untimed(ta), altitude_m=d, source="nmea:DPT")
