@@ -73,7 +73,8 @@ class NavMerger:
             if self._held:  # keep arrival order
                 self._held.append(tile)
                 return self.poll(now)
-            return [self._finish(tile, tile.nav, np.ones(tile.rows, bool))]
+            done = self._finish(tile, *self._tile_nav_valid(tile))
+            return [done] if done is not None else []
         self._held.append(tile)
         self.stats.tiles_held += 1
         return self.poll(now)
@@ -85,7 +86,9 @@ class NavMerger:
             tile = self._held[0]
             if tile.nav is not None:
                 self._held.popleft()
-                out.append(self._finish(tile, tile.nav, np.ones(tile.rows, bool)))
+                done = self._finish(tile, *self._tile_nav_valid(tile))
+                if done is not None:
+                    out.append(done)
                 continue
             last = float(tile.ping_time[-1])
             span = self.track.span
@@ -98,8 +101,16 @@ class NavMerger:
             for r in sample.reason:
                 self.stats.reasons[r] = self.stats.reasons.get(r, 0) + 1
             self.stats.tiles_interpolated += 1
-            out.append(self._finish(tile, sample.nav, sample.valid))
+            done = self._finish(tile, sample.nav, sample.valid)
+            if done is not None:
+                out.append(done)
         return out
+
+    @staticmethod
+    def _tile_nav_valid(tile: Tile):
+        """A tile's own nav, with pings at exactly (0, 0) (a recorder's "no fix") invalid."""
+        nav = tile.nav
+        return nav, ~((nav.lat_deg == 0.0) & (nav.lon_deg == 0.0))
 
     def _finish(self, tile: Tile, nav, valid: np.ndarray) -> Tile | None:
         valid = valid.copy()
@@ -110,10 +121,13 @@ class NavMerger:
             valid[jumps + 1] = False
             self.stats.nav_jump_pings += int(2 * jumps.size)
         if not valid.any():
+            # nothing to place it with: dropped here (counted), never georeferenced at a
+            # placeholder position
             self.stats.tiles_without_nav += 1
             self.stats.pings_without_nav += tile.rows
-            log.warning("%s: no usable nav for any ping; its pixels give no evidence", tile.ident)
-        elif not valid.all():
+            log.warning("%s: no usable nav for any ping; dropped", tile.ident)
+            return None
+        if not valid.all():
             self.stats.pings_without_nav += int((~valid).sum())
         # fill invalid nav rows with a harmless value so geometry stays finite; their pixels are NaN
         nav = _fill_invalid(nav, valid, self.default_altitude_m)

@@ -1,0 +1,90 @@
+"""Convert a recording between XTF and .atrlog.
+
+  atr-node convert survey.xtf survey.atrlog     XTF side-scan -> tiles (slant range, as
+                                                recorded) and NMEA navigation records
+  atr-node convert mission.atrlog mission.xtf   sonar tiles -> XTF ping packets (port and
+                                                starboard of the same pings together)
+
+The direction follows the suffixes. What was read, skipped (unknown XTF packet types, records
+XTF cannot hold) and dropped is printed at the end; the exit status is 0 when the conversion
+ran to the end of the input, even if some packets or records were skipped."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..errors import AtrError
+from ..io.atrlog import AtrLogReader, AtrLogWriter
+from ..io.xtf import DEFAULT_TILE_PINGS, XtfReader
+from ..io.xtf_write import XtfWriter
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("input", metavar="IN", help="recording to read (.xtf or .atrlog)")
+    parser.add_argument("output", metavar="OUT", help="file to write (.atrlog or .xtf); overwritten")
+    parser.add_argument("--tile-pings", type=int, default=DEFAULT_TILE_PINGS, metavar="N",
+                        help=f"XTF -> atrlog: most pings per tile (default {DEFAULT_TILE_PINGS})")
+    parser.add_argument("--mission", metavar="NAME", help="XTF -> atrlog: mission name (default: the file's)")
+    parser.add_argument("--altitude", choices=("altimeter", "sonar"), default="altimeter",
+                        help="XTF -> atrlog: tile altitude from the recorded altimeter (default) or from the "
+                             "sonar's first seabed return")
+    parser.add_argument("--leg", type=int, metavar="N", help="XTF -> atrlog: leg number (default: the file's, or 0)")
+
+
+def _kind(path: Path) -> str:
+    suffix = path.suffix.lower()
+    if suffix in (".xtf", ".atrlog"):
+        return suffix[1:]
+    raise AtrError(f"{path}: unknown recording type {suffix or '(no suffix)'!r}; expected .xtf or .atrlog")
+
+
+def xtf_to_atrlog(src: Path, dst: Path, *, tile_pings: int, mission: str | None, leg: int | None,
+                  altitude: str = "altimeter") -> str:
+    """Write the records of an XTF file to an .atrlog; return the summary."""
+    reader = XtfReader(src, tile_pings=tile_pings, mission=mission, leg=leg, altitude=altitude)
+    with AtrLogWriter(dst, flush_every=256) as w:
+        for rec in reader:
+            w.write_record(rec)
+    return f"{reader.stats.summary()}\nwrote {w.records} records to {dst}"
+
+
+def atrlog_to_xtf(src: Path, dst: Path) -> str:
+    """Write the sonar tiles of an .atrlog to an XTF file; return the summary."""
+    reader = AtrLogReader(src)
+    with XtfWriter(dst) as w:
+        for rec in reader:
+            w.write_record(rec)
+    s = w.stats
+    lines = [f"{src}: {reader.records} records read, {reader.rejected} rejected"
+             + (" (truncated last record)" if reader.truncated else ""),
+             f"wrote {s.pings} pings from {s.tiles} tiles to {dst}"
+             + (f" ({s.unpaired_tiles} tiles without their other side)" if s.unpaired_tiles else "")]
+    if s.skipped:
+        lines.append("  not in XTF: " + ", ".join(f"{k} records {v}" for k, v in sorted(s.skipped.items())))
+    lines.extend(f"  rejected tile: {r}" for r in s.rejected)
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    src, dst = Path(args.input), Path(args.output)
+    kin, kout = _kind(src), _kind(dst)
+    if kin == kout:
+        raise AtrError(f"{src} -> {dst}: both are .{kin}; convert goes from .xtf to .atrlog or back")
+    if not src.is_file():
+        raise AtrError(f"{src}: no such file")
+    if src.resolve() == dst.resolve():
+        raise AtrError(f"{dst}: output would overwrite the input")
+    if args.tile_pings < 1:
+        raise AtrError(f"--tile-pings must be >= 1, got {args.tile_pings}")
+    try:
+        if kin == "xtf":
+            text = xtf_to_atrlog(src, dst, tile_pings=args.tile_pings, mission=args.mission, leg=args.leg,
+                                 altitude=args.altitude)
+        else:
+            text = atrlog_to_xtf(src, dst)
+    except OSError as exc:
+        raise AtrError(f"{exc.filename or dst}: {exc.strerror or exc}") from None
+    print(text, file=sys.stdout)
+    return 0

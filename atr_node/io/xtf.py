@@ -1,0 +1,294 @@
+"""XTF side-scan recordings as the records of an ``.atrlog`` (ICD sections 1 and 4).
+
+:func:`iter_xtf_records` turns an XTF file into the stream a replay plays, so an ``.xtf``
+replays exactly like an ``.atrlog``:
+
+- ``sonar`` records: one tile map (ICD section 1) per side per block of at most
+  ``tile_pings`` pings, as recorded: ``slant`` true (false only for channels flagged ground
+  range), the file's sample type (``uint16`` for most side-scans; 0 = no data), columns from
+  the nadir outwards (the port channel, stored far range first, is reversed), ``range0_m`` the
+  centre of sample 0 (``TimeDelay`` x one-way sound speed + dr/2), ``dr_m`` = slant range /
+  samples, ``dx_m`` = mean speed (knots in XTF) x median ping interval, per-row ``nav`` from
+  the ping headers (``altitude="sonar"``: altitude from the pings' first seabed return,
+  :mod:`.xtf_bottom`), ``sensor`` from the channel headers where the file has it (the rest from
+  :class:`~atr_node.config.SensorSettings`). A block ends early when the channel geometry
+  changes, after a pause of more than ``max_gap_s``, or when pings start or stop carrying a
+  position: pings without one make tiles without ``nav`` (the node then interpolates its INS
+  links).
+- ``nmea`` records synthesised with :mod:`hw.nmea`: from ping headers GGA (at the position fix
+  time when the header has it, height = -depth), HDT, DPT (altitude above the seabed), VTG
+  (speed, null course: XTF has none); from navigation packets GGA, from attitude and gyro
+  packets HDT; ZDA once a second so decoders know the date. NMEA sentences a serial port
+  logged into raw serial packets (type 6) come out as recorded.
+
+Records come in time order: ``t`` is the packet time (a tile's is its last ping), never less
+than the record before (a navigation packet stamped earlier than what precedes it in the file
+arrives with the previous time; its sentence keeps its own). Pings going back in time are
+dropped and counted. Everything met is counted in an :class:`XtfStats`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from hw.errors import NmeaError
+from hw.nmea import KNOT_M_S, encode_dpt, encode_gga, encode_hdt, encode_zda, format_sentence
+
+from ..config import SensorSettings
+from ..records.nav import _haversine_m, nav_jumps
+from ..records.tile import SensorInfo, Tile, TileNav
+from .atrlog import LogRecord
+from .xtf_bottom import bottom_altitude_m
+from .xtf_packets import NAV_UNITS_LATLON, XtfNav, XtfPing, XtfSerial, iter_xtf_items, note_fields
+from .xtf_stats import XtfStats
+
+__all__ = ["DEFAULT_TILE_PINGS", "XtfReader", "XtfStats", "iter_xtf_records"]
+
+DEFAULT_TILE_PINGS = 256
+ALTITUDE_SOURCES = ("altimeter", "sonar")
+WIRE_DTYPE = {np.dtype("<u2"): "uint16", np.dtype("u1"): "uint8"}
+
+
+def _nav_valid(nav: XtfNav) -> bool:
+    return nav.has_position and math.isfinite(nav.heading_deg) and math.isfinite(nav.altitude_m) \
+        and nav.altitude_m >= 0
+
+
+def _block_key(ping: XtfPing) -> tuple:
+    """Pings of one tile share this: per side samples, dtype, range0 and dr; nav or not."""
+    sides = tuple((s, c.samples.size, c.samples.dtype.str, c.range0_m, c.dr_m, c.slant)
+                  for s, c in sorted(ping.channels.items()))
+    return sides, _nav_valid(ping.nav)
+
+
+class XtfReader:
+    """Stream the records of an XTF file (see the module docstring); ``stats`` fills as it goes.
+
+    Parameters
+    ----------
+    path
+        The XTF file.
+    tile_pings
+        Most pings per tile.
+    mission
+        Mission name in the tiles; default the file name without suffix.
+    leg
+        Survey leg number of every tile (one file = one leg).
+    seq0
+        ``seq`` of the first tile of each side.
+    sensor
+        Sensor values the file does not hold (tx/rx array lengths, bandwidth), and ``dx_m``
+        when neither speed nor positions give it.
+    altitude
+        ``altimeter``: the tile ``nav.altitude_m`` is the ping header's altitude, as recorded;
+        ``sonar``: the sonar's own altitude from the first seabed return of the pings
+        (:mod:`.xtf_bottom`), the recorded one where no return is found. DPT sentences always
+        carry the recorded altitude.
+    max_gap_s
+        A longer pause between two pings starts a new tile (a tile is a contiguous run).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, tile_pings: int = DEFAULT_TILE_PINGS,
+                 mission: str | None = None, leg: int | None = None, seq0: int | None = None,
+                 sensor: SensorSettings | None = None, altitude: str = "altimeter", max_gap_s: float = 2.0) -> None:
+        if not max_gap_s > 0:
+            raise ValueError(f"max_gap_s must be > 0, got {max_gap_s}")
+        self.max_gap_s = float(max_gap_s)
+        if altitude not in ALTITUDE_SOURCES:
+            raise ValueError(f"altitude must be one of {ALTITUDE_SOURCES}, got {altitude!r}")
+        self.altitude = altitude
+        if tile_pings < 1:
+            raise ValueError(f"tile_pings must be >= 1, got {tile_pings}")
+        self.path = Path(path)
+        self.tile_pings = int(tile_pings)
+        self._args = (mission, leg, seq0)
+        self.mission, self.leg, self.seq0 = mission or self.path.stem or "xtf", int(leg or 0), int(seq0 or 0)
+        self.sensor = sensor or SensorSettings()
+        self.stats = XtfStats(path=str(self.path))
+
+    def _use_header(self, header) -> None:
+        """Mission, leg and seq written by :mod:`.xtf_write` are the defaults of the arguments."""
+        note = note_fields(bytes(header.NoteString))
+        mission, leg, seq0 = self._args
+        try:
+            self.mission = mission or note.get("mission") or self.mission
+            self.leg = int(leg if leg is not None else note.get("leg", 0))
+            self.seq0 = int(seq0 if seq0 is not None else note.get("seq", 0))
+        except ValueError:
+            pass
+        self._seq = {"port": self.seq0, "stbd": self.seq0}
+        if header.NavUnits != NAV_UNITS_LATLON:
+            self.stats.errors.append(f"{self.path}: NavUnits {header.NavUnits} (projected metres, projection unknown): "
+                                     "positions are not used; tiles carry no nav")
+
+    def __iter__(self) -> Iterator[LogRecord]:
+        self._last_t = -math.inf
+        self._last_ping_t = -math.inf
+        self._header: list = []
+        self._seq = {"port": self.seq0, "stbd": self.seq0}
+        self._last_gga: tuple | None = None
+        self._last_gga_t = -math.inf
+        self._zda_second = -math.inf
+        self._last_dx: float | None = None
+        block: list[XtfPing] = []
+        key = None
+        for item in iter_xtf_items(self.path, self.stats, self._header):
+            if self._header:  # filled by the generator before its first item
+                self._use_header(self._header.pop())
+            if isinstance(item, XtfSerial):
+                for line in item.lines:
+                    if line.startswith(b"$"):  # an NMEA sentence as the port delivered it
+                        self.stats.nmea["raw_serial"] += 1
+                        yield self._record(item.t, "nmea", line + b"\r\n", item.offset)
+                    else:
+                        self.stats.skipped["raw_serial_text"] += 1
+                continue
+            if isinstance(item, XtfNav):
+                self.stats.nav_fixes += 1
+                yield from self._nav_records(item, item.t, item.fix_t, item.offset)
+                continue
+            ping = item
+            if ping.nav.t < self._last_ping_t:
+                self.stats.pings_dropped["time_backwards"] += 1
+                continue
+            self._last_ping_t = ping.nav.t
+            k = _block_key(ping)
+            gap = bool(block) and ping.nav.t - block[-1].nav.t > self.max_gap_s
+            if block and (k != key or len(block) >= self.tile_pings or gap):
+                yield from self._tiles(block)
+                block = []
+            key = k
+            block.append(ping)
+            self.stats.pings += 1
+            if not _nav_valid(ping.nav):
+                self.stats.pings_without_nav += 1
+            yield from self._nav_records(ping.nav, ping.nav.t, ping.nav.fix_t, ping.offset)
+        if block:
+            yield from self._tiles(block)
+
+    # -- records -----------------------------------------------------------------------------
+    def _record(self, t: float, link: str, msg, offset: int) -> LogRecord:
+        self._last_t = max(t, self._last_t)
+        return LogRecord(t=self._last_t, link=link, msg=msg, offset=offset)
+
+    def _sentence(self, t: float, kind: str, make, offset: int) -> Iterator[LogRecord]:
+        try:
+            line = make()
+        except NmeaError as exc:
+            self.stats.errors.append(f"{self.path}: at byte {offset}: {kind} not written: {exc}")
+            return
+        self.stats.nmea[kind] += 1
+        yield self._record(t, "nmea", line, offset)
+
+    def _nav_records(self, nav: XtfNav, t: float, fix_t: float, offset: int) -> Iterator[LogRecord]:
+        """NMEA sentences for one ping header or navigation packet."""
+        if nav.has_position:
+            fix = (nav.lat_deg, nav.lon_deg, fix_t)
+            t_fix = fix_t if math.isfinite(fix_t) else t
+            if fix != self._last_gga or t - self._last_gga_t >= 1.0:
+                if math.floor(t_fix) > self._zda_second:
+                    self._zda_second = math.floor(t_fix)
+                    yield from self._sentence(t, "ZDA", lambda: encode_zda(t_fix), offset)
+                height = -nav.depth_m if math.isfinite(nav.depth_m) else (
+                    nav.height_m if math.isfinite(nav.height_m) else 0.0)
+                yield from self._sentence(t, "GGA", lambda: encode_gga(t_fix, nav.lat_deg, nav.lon_deg,
+                                                                        height_m=height), offset)
+                self._last_gga, self._last_gga_t = fix, t
+                if math.isfinite(nav.speed_m_s) and nav.speed_m_s >= 0:
+                    kn = nav.speed_m_s / KNOT_M_S
+                    yield from self._sentence(t, "VTG", lambda: format_sentence(
+                        "GPVTG", ["", "T", "", "M", f"{kn:.2f}", "N", f"{nav.speed_m_s * 3.6:.2f}", "K", "A"]),
+                        offset)
+        if math.isfinite(nav.heading_deg):
+            yield from self._sentence(t, "HDT", lambda: encode_hdt(nav.heading_deg), offset)
+        if math.isfinite(nav.altitude_m) and nav.altitude_m >= 0:
+            yield from self._sentence(t, "DPT", lambda: encode_dpt(nav.altitude_m), offset)
+
+    # -- tiles -------------------------------------------------------------------------------
+    def _dx_m(self, block: list[XtfPing]) -> float:
+        """Along-track ping spacing: mean speed x median ping interval, else from positions."""
+        t = np.array([p.nav.t for p in block])
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+        v = np.array([p.nav.speed_m_s for p in block])
+        v = v[np.isfinite(v) & (v > 0)]
+        dx = 0.0
+        if dt > 0 and v.size:
+            dx = float(v.mean()) * dt
+        elif t.size > 1 and block[0].nav.has_position and block[-1].nav.has_position:
+            dx = float(_haversine_m(block[0].nav.lat_deg, block[0].nav.lon_deg,
+                                    block[-1].nav.lat_deg, block[-1].nav.lon_deg)) / (t.size - 1)
+        if not (math.isfinite(dx) and dx > 0):
+            dx = self._last_dx if self._last_dx is not None else self.sensor.dx_m
+        self._last_dx = dx
+        return dx
+
+    def _sensor_info(self, ping: XtfPing, side: str) -> SensorInfo:
+        ch = ping.channels[side]
+        missing = ["tx_length_m", "rx_length_m"]
+        if not ch.frequency_hz > 0:
+            missing.append("frequency_hz")
+        if not ch.bandwidth_hz > 0:
+            missing.append("bandwidth_hz")
+        self.stats.sensor_defaults = tuple(sorted(set(self.stats.sensor_defaults) | set(missing)))
+        s = self.sensor
+        # XTF side-scan channels are real-aperture: one receiver, no SAS processing.
+        return SensorInfo(frequency_hz=ch.frequency_hz if ch.frequency_hz > 0 else s.frequency_hz,
+                          bandwidth_hz=ch.bandwidth_hz * 1e3 if ch.bandwidth_hz > 0 else s.bandwidth_hz,
+                          tx_length_m=s.tx_length_m, rx_length_m=s.rx_length_m, n_rx=1, sas=False)
+
+    def _tiles(self, block: list[XtfPing]) -> Iterator[LogRecord]:
+        first, last = block[0], block[-1]
+        ping_time = np.array([p.nav.t for p in block], dtype=np.float64)
+        nav = None
+        if _nav_valid(first.nav):
+            nav = TileNav(*(np.array([getattr(p.nav, k) for p in block])
+                            for k in ("lat_deg", "lon_deg", "heading_deg", "altitude_m")))
+            self.stats.nav_jumps += int(nav_jumps(nav, ping_time).size)
+        dx = self._dx_m(block)
+        tiles = {}
+        for side in ("port", "stbd"):
+            if side not in first.channels:
+                continue
+            ch = first.channels[side]
+            raw = np.stack([p.channels[side].samples for p in block])
+            wire = WIRE_DTYPE.get(raw.dtype, "float32")
+            pixels = raw.astype(np.float32)
+            if wire == "float32":
+                pixels[~np.isfinite(pixels) | (pixels < 0)] = np.nan  # no data, never negative (ICD 1)
+            else:
+                pixels[raw == 0] = np.nan
+            tiles[side] = Tile(mission=self.mission, leg=self.leg, side=side, seq=self._seq[side], pixels=pixels,
+                               kind="amplitude", range0_m=ch.range0_m, dr_m=ch.dr_m, dx_m=dx, slant=ch.slant,
+                               ping_time=ping_time, nav=nav, sensor=self._sensor_info(first, side),
+                               wire_dtype=wire)
+        if nav is not None and self.altitude == "sonar" and first.channels[next(iter(tiles))].slant:
+            alt = bottom_altitude_m(tiles.get("port"), tiles.get("stbd"))
+            tracked = np.isfinite(alt)
+            self.stats.altitude_from_sonar += int(tracked.sum())
+            nav = TileNav(nav.lat_deg, nav.lon_deg, nav.heading_deg, np.where(tracked, alt, nav.altitude_m))
+        for side, tile in tiles.items():
+            self._seq[side] += 1
+            self.stats.tiles += 1
+            yield self._record(float(ping_time[-1]), "sonar", tile.replace(nav=nav).to_map(), last.offset)
+
+
+def iter_xtf_records(path: str | os.PathLike[str], *, tile_pings: int = DEFAULT_TILE_PINGS,
+                     mission: str | None = None, leg: int | None = None, seq0: int | None = None,
+                     sensor: SensorSettings | None = None, altitude: str = "altimeter",
+                     stats: XtfStats | None = None) -> Iterator[LogRecord]:
+    """Stream an XTF file as ``.atrlog`` records (see :class:`XtfReader`).
+
+    ``stats``, when given, is filled as the records stream (packets by type, skipped unknown
+    types, pings, tiles, NMEA sentences); read it once the iterator is exhausted.
+    """
+    reader = XtfReader(path, tile_pings=tile_pings, mission=mission, leg=leg, seq0=seq0, sensor=sensor,
+                       altitude=altitude)
+    if stats is not None:
+        stats.path = reader.stats.path
+        reader.stats = stats
+    return iter(reader)

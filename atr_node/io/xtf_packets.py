@@ -1,0 +1,347 @@
+"""XTF packets to pings and navigation fixes (eXtended Triton Format, rev. 35 and later).
+
+The byte layouts are pyxtf's ctypes structures (the maintained parser); this module owns the
+framing, so that a packet type nobody knows is skipped by its length and counted instead of
+being built, warned about or allowed to stop the file. An XTF file is::
+
+    file header (1024 bytes: XTFFileHeader, 6 XTFChanInfo of 128 bytes)
+    packets: each starts with XTFPacketStart (14 bytes)
+        MagicNumber 0xFACE (uint16), HeaderType (uint8), SubChannelNumber (uint8),
+        NumChansToFollow (uint16), Reserved (2 x uint16), NumBytesThisRecord (uint32)
+    and is NumBytesThisRecord bytes long, padding included.
+
+What is turned into values:
+
+========================== ===============================================================
+HeaderType                 values
+========================== ===============================================================
+0 sonar                    one :class:`XtfPing`: per side (port/stbd channel) the samples
+                           from the nadir outwards (port is stored far-to-near and is
+                           reversed), slant range and sample spacing; time, position,
+                           heading, altitude, depth, speed and fix time from the ping header
+42 navigation, 107 raw nav position (and time); 42 also altitude above the datum
+3 attitude                 heading (``Heading`` field)
+6 raw serial               the text lines a serial port logged (NMEA sentences, as recorded)
+23 gyro, 84 source gyro    heading (``Gyro`` field)
+========================== ===============================================================
+
+Everything else is skipped and counted under its pyxtf type name (``unknown_<n>`` for types
+pyxtf does not name). A packet that cannot be parsed is skipped and counted as ``bad``; a
+packet whose framing is broken (wrong magic number, length past the end of the file) ends the
+read with a warning that names the byte offset, keeping everything before it.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import io
+import logging
+import math
+import os
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import BinaryIO, Iterator
+
+import numpy as np
+from pyxtf.enumerations import XTFHeaderType
+from pyxtf.xtf_ctypes import (XTFAttitudeData, XTFFileHeader, XTFHeaderGyro, XTFHeaderNavigation,
+                              XTFPacketStart, XTFPingHeader, XTFPosRawNavigation, XTFRawSerialHeader)
+
+from ..errors import LogFormatError
+from .xtf_stats import XtfStats
+
+log = logging.getLogger(__name__)
+
+MAGIC = 0xFACE
+FILE_HEADER_BYTES = ctypes.sizeof(XTFFileHeader)
+PACKET_START_BYTES = ctypes.sizeof(XTFPacketStart)
+KNOT_M_S = 1852.0 / 3600.0
+NAV_UNITS_LATLON = 3
+CHANNEL_SIDES = {1: "port", 2: "stbd"}  # XTFChanInfo.TypeOfChannel
+SONAR, RAW_SERIAL, NAVIGATION, POS_RAW_NAVIGATION = 0, 6, 42, 107
+ATTITUDE, GYRO, SOURCETIME_GYRO = 3, 23, 84
+
+
+def type_name(header_type: int) -> str:
+    """pyxtf's name of an XTF packet type, or ``unknown_<n>``."""
+    try:
+        return XTFHeaderType(header_type).name
+    except ValueError:
+        return f"unknown_{header_type}"
+
+
+@dataclass(frozen=True)
+class XtfChannel:
+    """One side of one ping, samples from the nadir outwards (column 0 nearest the sonar)."""
+
+    side: str
+    samples: np.ndarray
+    """(n,) in the file's dtype."""
+    range0_m: float
+    """Slant range of sample 0's centre."""
+    dr_m: float
+    """Range spacing: slant (or ground) range / number of samples."""
+    slant: bool
+    """False when the channel says ground range (XTFChanInfo.CorrectionFlags 2)."""
+    frequency_hz: float
+    bandwidth_hz: float
+
+
+@dataclass(frozen=True)
+class XtfNav:
+    """Navigation of a ping or of a navigation packet; NaN = not in the packet."""
+
+    t: float
+    """UNIX seconds of the packet (ping time for pings)."""
+    lat_deg: float = math.nan
+    lon_deg: float = math.nan
+    heading_deg: float = math.nan
+    altitude_m: float = math.nan
+    """Above the seabed (sonar pings: SensorPrimaryAltitude)."""
+    depth_m: float = math.nan
+    speed_m_s: float = math.nan
+    fix_t: float = math.nan
+    """UNIX seconds of the position fix, when the packet says (ping FixTime fields)."""
+    height_m: float = math.nan
+    """Antenna height above the datum (navigation packets)."""
+    source: str = ""
+    offset: int = 0
+    """Byte offset of the packet in the file."""
+
+    @property
+    def has_position(self) -> bool:
+        return math.isfinite(self.lat_deg) and math.isfinite(self.lon_deg)
+
+
+@dataclass(frozen=True)
+class XtfSerial:
+    """Text a serial port logged into the file (raw serial packet), split into lines."""
+
+    t: float
+    lines: tuple[bytes, ...]
+    offset: int = 0
+
+
+@dataclass(frozen=True)
+class XtfPing:
+    """One sonar ping: navigation and the port and starboard channels present."""
+
+    nav: XtfNav
+    channels: dict
+    """side -> :class:`XtfChannel`."""
+    ping_number: int
+    offset: int
+    """Byte offset of the packet in the file."""
+
+
+NOTE_PREFIX = "atr-node "
+
+
+def note_fields(note: bytes) -> dict[str, str]:
+    """``mission``, ``leg``, ``seq`` from a file header NoteString written by :mod:`.xtf_write`."""
+    text = note.decode("ascii", "replace")
+    if not text.startswith(NOTE_PREFIX):
+        return {}
+    return dict(kv.split("=", 1) for kv in text[len(NOTE_PREFIX):].split() if "=" in kv)
+
+
+def read_file_header(fh: BinaryIO, path: str) -> XTFFileHeader:
+    """The XTF file header, checked (format byte, channel count)."""
+    raw = fh.read(FILE_HEADER_BYTES)
+    if len(raw) < FILE_HEADER_BYTES:
+        raise LogFormatError(f"not an XTF file: {len(raw)} bytes, a file header is {FILE_HEADER_BYTES}",
+                             path=path, offset=0)
+    header = XTFFileHeader.create_from_buffer(raw)
+    if header.FileFormat != 0x7B:
+        raise LogFormatError(f"not an XTF file: format byte {header.FileFormat:#x}, expected 0x7b", path=path, offset=0)
+    if header.channel_count() > 6:
+        raise LogFormatError(f"{header.channel_count()} channels: this reader handles at most 6 "
+                             "(one 1024-byte file header)", path=path, offset=0)
+    return header
+
+
+def _utc(year: int, month: int, day: int, hour: int, minute: int, second: int) -> float:
+    """UNIX seconds of a UTC calendar time; ValueError when the fields are not a time."""
+    return datetime(year, month, day, hour, minute, second, tzinfo=timezone.utc).timestamp()
+
+
+def _finite_or_nan(x: float) -> float:
+    x = float(x)
+    return x if math.isfinite(x) else math.nan
+
+
+def _latlon(nav_units: int, y: float, x: float) -> tuple[float, float]:
+    """(lat, lon) of an XTF coordinate pair, NaN when not lat/lon or not set (0, 0)."""
+    if nav_units != NAV_UNITS_LATLON or (y == 0.0 and x == 0.0):
+        return math.nan, math.nan
+    if not (math.isfinite(y) and math.isfinite(x) and abs(y) <= 90.0 and abs(x) <= 180.0):
+        return math.nan, math.nan
+    return float(y), float(x)
+
+
+def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfStats) -> XtfPing | None:
+    """A sonar ping packet as :class:`XtfPing`, or None (counted in ``stats``)."""
+    try:
+        t = _utc(p.Year, p.Month, p.Day, p.Hour, p.Minute, p.Second) + p.HSeconds / 100.0
+    except ValueError:
+        stats.pings_dropped["bad_time"] += 1
+        return None
+    fix_t = math.nan
+    if p.FixTimeHour or p.FixTimeMinute or p.FixTimeSecond or p.FixTimeHsecond:
+        day0 = t - (t % 86400.0)
+        fix_t = day0 + p.FixTimeHour * 3600 + p.FixTimeMinute * 60 + p.FixTimeSecond + p.FixTimeHsecond / 100.0
+        if fix_t - t > 43200.0:  # fix stamped just before midnight, ping just after
+            fix_t -= 86400.0
+    lat, lon = _latlon(header.NavUnits, p.SensorYcoordinate, p.SensorXcoordinate)
+    if math.isnan(lat):
+        lat, lon = _latlon(header.NavUnits, p.ShipYcoordinate, p.ShipXcoordinate)
+    has_pos = not math.isnan(lat)
+    nav = XtfNav(t=t, lat_deg=lat, lon_deg=lon,
+                 heading_deg=_finite_or_nan(p.SensorHeading) % 360.0 if has_pos else math.nan,
+                 altitude_m=_finite_or_nan(p.SensorPrimaryAltitude) if has_pos else math.nan,
+                 depth_m=_finite_or_nan(p.SensorDepth) if has_pos else math.nan,
+                 speed_m_s=_finite_or_nan(p.SensorSpeed) * KNOT_M_S if has_pos else math.nan,
+                 fix_t=fix_t, source="xtf:sonar")
+    sv = float(p.SoundVelocity)
+    sv = 750.0 if not (math.isfinite(sv) and sv > 0) else (sv / 2.0 if sv > 1000.0 else sv)  # one-way speed
+    channels: dict[str, XtfChannel] = {}
+    for i, (ch, data) in enumerate(zip(p.ping_chan_headers, p.data)):
+        info = header.ChanInfo[ch.ChannelNumber] if ch.ChannelNumber < 6 else None
+        side = CHANNEL_SIDES.get(info.TypeOfChannel) if info is not None else None
+        if side is None or side in channels:
+            stats.skipped[f"channel_type_{info.TypeOfChannel if info is not None else '?'}"] += 1
+            continue
+        n = int(data.size)
+        is_slant = info.CorrectionFlags != 2
+        slant = float(ch.SlantRange if is_slant or not ch.GroundRange > 0 else ch.GroundRange)
+        if not (math.isfinite(slant) and slant > 0):
+            slant = float(ch.TimeDuration) * sv
+        if n == 0 or not (math.isfinite(slant) and slant > 0):
+            stats.pings_dropped["no_range"] += 1
+            return None
+        samples = data  # dtype from SampleFormat / BytesPerSample (pyxtf)
+        if side == "port":  # stored far range first: column 0 must be nearest the sonar
+            samples = samples[::-1]
+        dr = slant / n
+        freq = float(ch.Frequency) * 1e3 if ch.Frequency else float(info.Frequency) * 1e3
+        channels[side] = XtfChannel(side=side, samples=np.ascontiguousarray(samples),
+                                    range0_m=float(ch.TimeDelay) * sv + 0.5 * dr, dr_m=dr, slant=is_slant,
+                                    frequency_hz=freq, bandwidth_hz=float(ch.BandWidth))
+    if not channels:
+        stats.pings_dropped["no_side_scan_channel"] += 1
+        return None
+    return XtfPing(nav=nav, channels=channels, ping_number=int(p.PingNumber), offset=offset)
+
+
+def parse_nav_packet(kind: int, raw: bytes, header: XTFFileHeader, offset: int = 0) -> XtfNav:
+    """A navigation, attitude or gyro packet as :class:`XtfNav`; ValueError when its time is not a time."""
+    if kind in (NAVIGATION, POS_RAW_NAVIGATION):
+        p = (XTFHeaderNavigation if kind == NAVIGATION else XTFPosRawNavigation).from_buffer_copy(raw[:ctypes.sizeof(
+            XTFHeaderNavigation if kind == NAVIGATION else XTFPosRawNavigation)])
+        # Microsecond: 0-999999 in packet 42, but 0-9999 (tenths of a millisecond) in packet 107
+        tick = 1e-6 if kind == NAVIGATION else 1e-4
+        t = _utc(p.Year, p.Month, p.Day, p.Hour, p.Minute, p.Second) + p.Microsecond * tick
+        lat, lon = _latlon(header.NavUnits, p.RawYcoordinate, p.RawXcoordinate)
+        return XtfNav(t=t, lat_deg=lat, lon_deg=lon, height_m=_finite_or_nan(p.RawAltitude),
+                      source=f"xtf:{type_name(kind)}", offset=offset)
+    if kind == ATTITUDE:
+        p = XTFAttitudeData.from_buffer_copy(raw[:ctypes.sizeof(XTFAttitudeData)])
+        if p.SourceEpoch:
+            t = float(p.SourceEpoch) + p.EpochMicroseconds * 1e-6
+        else:
+            t = _utc(p.Year, p.Month, p.Day, p.Hour, p.Minute, p.Second) + p.Millisecond * 1e-3
+        return XtfNav(t=t, heading_deg=_finite_or_nan(p.Heading) % 360.0, source="xtf:attitude", offset=offset)
+    p = XTFHeaderGyro.from_buffer_copy(raw[:ctypes.sizeof(XTFHeaderGyro)])
+    t = float(p.SourceEpoch) + p.Microsecond * 1e-6 if p.SourceEpoch else \
+        _utc(p.Year, p.Month, p.Day, p.Hour, p.Minute, p.Second) + p.Microsecond * 1e-6
+    return XtfNav(t=t, heading_deg=_finite_or_nan(p.Gyro) % 360.0, source=f"xtf:{type_name(kind)}", offset=offset)
+
+
+def parse_raw_serial(raw: bytes, offset: int = 0) -> XtfSerial:
+    """A raw serial packet: its time (hundredths) and the non-empty lines of its text."""
+    p = XTFRawSerialHeader.from_buffer_copy(raw[:ctypes.sizeof(XTFRawSerialHeader)])
+    t = _utc(p.Year, p.Month, p.Day, p.Hour, p.Minute, p.Second) + p.HSeconds / 100.0
+    text = raw[ctypes.sizeof(XTFRawSerialHeader):ctypes.sizeof(XTFRawSerialHeader) + p.StringSize]
+    lines = tuple(line.strip(b"\x00 ") for line in text.replace(b"\r", b"\n").split(b"\n"))
+    return XtfSerial(t=t, lines=tuple(line for line in lines if line), offset=offset)
+
+
+NAV_KINDS = (NAVIGATION, POS_RAW_NAVIGATION, ATTITUDE, GYRO, SOURCETIME_GYRO)
+MIN_BYTES = {SONAR: ctypes.sizeof(XTFPingHeader), NAVIGATION: ctypes.sizeof(XTFHeaderNavigation),
+             POS_RAW_NAVIGATION: ctypes.sizeof(XTFPosRawNavigation), ATTITUDE: ctypes.sizeof(XTFAttitudeData),
+             GYRO: ctypes.sizeof(XTFHeaderGyro), SOURCETIME_GYRO: ctypes.sizeof(XTFHeaderGyro),
+             RAW_SERIAL: ctypes.sizeof(XTFRawSerialHeader)}
+
+
+def iter_xtf_items(path: str | os.PathLike[str], stats: XtfStats,
+                   header_out: list | None = None) -> Iterator[XtfPing | XtfNav | XtfSerial]:
+    """Stream the pings, navigation fixes and serial text of an XTF file, in file order.
+
+    Parameters
+    ----------
+    path
+        The XTF file.
+    stats
+        Filled as the file streams (packets by type, skipped, bad, truncated, errors).
+    header_out
+        If given, the file header (``XTFFileHeader``) is appended to it before the first item.
+
+    Raises
+    ------
+    LogFormatError
+        The file is not XTF (file header). Damage further in ends the stream with a warning.
+    """
+    path = str(path)
+    stats.path = stats.path or path
+    size = os.path.getsize(path)
+    with open(path, "rb") as fh:
+        header = read_file_header(fh, path)
+        if header_out is not None:
+            header_out.append(header)
+        offset = FILE_HEADER_BYTES
+        while offset < size:
+            start = fh.read(PACKET_START_BYTES)
+            why = None
+            if len(start) < PACKET_START_BYTES:
+                why = f"{size - offset} bytes left, a packet header is {PACKET_START_BYTES}"
+            else:
+                ps = XTFPacketStart.from_buffer_copy(start)
+                if ps.MagicNumber != MAGIC:
+                    why = f"packet magic number {ps.MagicNumber:#06x}, expected 0xface"
+                elif ps.NumBytesThisRecord < PACKET_START_BYTES:
+                    why = f"packet length {ps.NumBytesThisRecord} shorter than its header"
+                elif offset + ps.NumBytesThisRecord > size:
+                    why = f"packet of {ps.NumBytesThisRecord} bytes runs past the end of the file ({size} bytes)"
+            if why is not None:
+                stats.truncated = True
+                msg = f"{path}: at byte {offset}: {why}; the rest of the file is ignored"
+                log.warning(msg)
+                stats.errors.append(msg)
+                return
+            kind = int(ps.HeaderType)
+            name = type_name(kind)
+            stats.packets[name] += 1
+            raw = start + fh.read(ps.NumBytesThisRecord - PACKET_START_BYTES)
+            here, offset = offset, offset + ps.NumBytesThisRecord
+            if kind not in MIN_BYTES:
+                stats.skipped[name] += 1
+                continue
+            if len(raw) < MIN_BYTES[kind]:
+                stats.bad += 1
+                stats.errors.append(f"{path}: {name} packet at byte {here}: {len(raw)} bytes, "
+                                    f"its header alone is {MIN_BYTES[kind]}")
+                continue
+            try:
+                if kind == SONAR:
+                    item = parse_ping(XTFPingHeader.create_from_buffer(io.BytesIO(raw), file_header=header),
+                                      header, here, stats)
+                elif kind == RAW_SERIAL:
+                    item = parse_raw_serial(raw, here)
+                else:
+                    item = parse_nav_packet(kind, raw, header, here)
+            except (RuntimeError, ValueError, IndexError, OverflowError) as exc:
+                stats.bad += 1
+                stats.errors.append(f"{path}: {name} packet at byte {here}: {exc}")
+                continue
+            if item is not None:
+                yield item
