@@ -35,6 +35,8 @@ class DetectJob:
     enabled: tuple[str, ...]
     template: TemplateSettings
     detectors: DetectorSettings
+    sweep: dict[str, tuple[float, ...]] | None = None
+    """Evaluation only: further thresholds per detector at which to extract detections too."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,6 +49,8 @@ class DetectResult:
     detections: dict[str, list[Detection]]
     """Per detector, detections with rows relative to the core."""
     seconds: float
+    sweep: dict[str, dict[float, list[Detection]]] | None = None
+    """Detections at the job's sweep thresholds (evaluation only)."""
 
     def covered(self, detector: str) -> np.ndarray:
         rows, cols = self.shape
@@ -63,13 +67,19 @@ def detect(job: DetectJob) -> DetectResult:
                          enabled=job.enabled, background=job.background, median=job.median)
     covered, dets = {}, {}
     shape = (job.core[1] - job.core[0], job.pixels.shape[1])
+    sweep: dict[str, dict[float, list[Detection]]] | None = {} if job.sweep else None
+
+    def extract(s: np.ndarray, d: str, tau: float) -> list[Detection]:
+        return find_detections(s, tau, detector=d, range0_m=job.range0_m, dr_m=job.dr_m, dx_m=job.dx_m,
+                               min_extent_m=job.detectors.min_extent_m, max_extent_m=job.detectors.max_extent_m)
+
     for d in job.enabled:
         s = scores[d]
         covered[d] = np.packbits(~np.isnan(s))
-        dets[d] = find_detections(s, job.taus[d], detector=d, range0_m=job.range0_m, dr_m=job.dr_m,
-                                  dx_m=job.dx_m, min_extent_m=job.detectors.min_extent_m,
-                                  max_extent_m=job.detectors.max_extent_m)
-    return DetectResult(job.key, shape, covered, dets, time.perf_counter() - t0)
+        dets[d] = extract(s, d, job.taus[d])
+        if sweep is not None:
+            sweep[d] = {float(tau): extract(s, d, tau) for tau in job.sweep.get(d, ())}
+    return DetectResult(job.key, shape, covered, dets, time.perf_counter() - t0, sweep)
 
 
 def worker_init(threads: int = 1) -> None:

@@ -137,6 +137,10 @@ class Pipeline:
         self._bg: dict[tuple[int, str], tuple[BackgroundTracker, _MedianTracker]] = {}
         self._arrival: dict[tuple[str, int], float] = {}
         self._inflight: deque[tuple[StripUnit, PerformanceModel, Future | DetectResult]] = deque()
+        self.sweep: dict[str, tuple[float, ...]] | None = None
+        """Evaluation: extra thresholds per detector whose detections are kept too."""
+        self.on_fused: Callable[[StripUnit, PerformanceModel, DetectResult], None] | None = None
+        """Evaluation: called with every unit after it is fused."""
         self.tiles_merged = 0
         self._strip_leg: int | None = None
         self.degraded = False
@@ -285,7 +289,7 @@ class Pipeline:
             self.stats.units_degraded += 1
         job = DetectJob(self.stats.units, unit.pixels, (unit.core.start, unit.core.stop), unit.range0_m, unit.dr_m,
                         unit.dx_m, float(np.median(unit.nav.altitude_m)), background, median, taus, self.enabled,
-                        self.settings.template, det_settings)
+                        self.settings.template, det_settings, self.sweep)
         self.stats.units += 1
         self.stats.pixels += unit.core_rows * unit.pixels.shape[1]
         if self._pool is None:
@@ -325,6 +329,8 @@ class Pipeline:
             self.stats.rejections[f"fusion: {type(exc).__name__}"] += 1
             log.error("leg %d %s: evidence rejected: %s", unit.leg, unit.side, exc)
         self._update_contacts(t)
+        if self.on_fused is not None:
+            self.on_fused(unit, model, res)
         now = time.monotonic()
         for seq in unit.completed:
             arrived = self._arrival.pop((unit.side, seq), None)

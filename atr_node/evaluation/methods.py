@@ -1,0 +1,206 @@
+"""The comparisons of the paper's figure 6, on the same detections.
+
+One pass of the node's pipeline over a recording keeps, per strip unit, each detector's
+coverage and detections (at the model's thresholds and at a ladder of further thresholds).
+From that one pass, without scoring again:
+
+- **each detector alone**: at every threshold of the ladder, its detections grouped across
+  legs within the association gate are the contacts (one ROC point per threshold);
+- **AND** of a detector set (the three best, all four) and **OR** of all four, at the
+  model's thresholds (operating points; ``atr_node.fusion.baselines``);
+- **Dempster-Shafer** fusion (a fresh evidence grid fed the same observations) without
+  missed-detection evidence (Pd set to 0), with it, and with it plus the weakest detector;
+  the ROC sweeps the threshold on Bel(T).
+
+"Best" and "weakest" are ranked by each detector's own ROC: Pd at its model threshold, then
+fewer false alarms.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+
+from ..calibration.model import PerformanceModel
+from ..config import Settings
+from ..fusion import ContactTracker, DetectionEvidence, DetectorObservation, EvidenceGrid, Observation
+from ..fusion.baselines import and_contacts, group_detections, or_contacts
+from ..fusion.grid import DetectionRecord
+from ..geo import MissionFrame, TileGeometry, tile_geometry
+from ..io.atrlog import LogRecord
+from ..node.detect import DetectResult
+from ..node.pipeline import Pipeline
+from ..node.strip import StripUnit
+from .scoring import OperatingPoint, RocCurve, match, operating_point, roc
+
+SWEEP_FACTORS = (0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.15, 1.3, 1.5, 1.75, 2.0, 2.5, 3.0)
+"""Thresholds of each detector's ROC, as factors of its model threshold."""
+EVAL_BEL_FLOOR = 0.02
+"""Fusion ROCs consider belief regions down to this Bel(T)."""
+
+
+@dataclass(frozen=True, eq=False)
+class UnitRecord:
+    leg: int
+    t: float
+    geometry: TileGeometry
+    ranges_m: np.ndarray
+    result: DetectResult
+    model: PerformanceModel
+
+
+@dataclass
+class EvaluationRun:
+    """What one pipeline pass over a recording leaves for the comparisons."""
+
+    settings: Settings
+    frame: MissionFrame
+    units: list[UnitRecord]
+    node_contacts: list[dict[str, Any]]
+    model: PerformanceModel
+    """The model in use at the end (the on-line one when it took over)."""
+    sweep: dict[str, tuple[float, ...]]
+    stats: dict[str, Any] = field(default_factory=dict)
+    covered_km2: float = 0.0
+
+
+def run_pipeline(settings: Settings, records: Iterable[LogRecord], *, model: PerformanceModel, online: Any = None,
+                 workers: int = 1, progress: Callable[[int, int], None] | None = None,
+                 sweep_factors: Sequence[float] = SWEEP_FACTORS,
+                 keep_pixels: Callable[[np.ndarray, TileGeometry], None] | None = None) -> EvaluationRun:
+    """Replay ``records`` through the node's pipeline, keeping every unit's detect result
+    (and handing each core's pixels with their geometry to ``keep_pixels``, for a mosaic)."""
+    pipe = Pipeline(settings, model=model, workers=workers, mode="replay", online=online)
+    units: list[UnitRecord] = []
+    sweeps: dict[str, tuple[float, ...]] = {}
+
+    def keep(unit: StripUnit, m: PerformanceModel, res: DetectResult) -> None:
+        core = unit.core_tile()
+        geometry = tile_geometry(core, pipe.frame)
+        units.append(UnitRecord(unit.leg, float(unit.ping_time[unit.core][-1]), geometry, core.ranges_m, res, m))
+        if keep_pixels is not None:
+            keep_pixels(core.pixels, geometry)
+
+    pipe.on_fused = keep
+    try:
+        n = 0
+        ladder_of = None
+        for rec in records:
+            if pipe.model is not ladder_of:
+                # the ladder follows the model in use (it changes when the on-line model takes over)
+                ladder_of = pipe.model
+                taus = {d: float(pipe.model.tau.get(d, getattr(settings.detectors.threshold, d)))
+                        for d in pipe.enabled}
+                sweeps = {d: tuple(sorted(set(round(f * taus[d], 9) for f in sweep_factors))) for d in pipe.enabled}
+                pipe.sweep = sweeps
+            pipe.feed(rec)
+            n += 1
+            if progress is not None and rec.link == "sonar":
+                progress(pipe.stats.tiles_in, n)
+        pipe.finish()
+        cell_km2 = (settings.fusion.cell_m ** 2) / 1e6
+        return EvaluationRun(settings, pipe.frame, units, pipe.contacts, pipe.model, sweeps,
+                             stats={"tiles": pipe.stats.tiles_in, "units": pipe.stats.units,
+                                    "pixels": pipe.stats.pixels, "detect_s": pipe.stats.detect_s,
+                                    "online_switched_at": getattr(pipe.online, "switched_at", None)},
+                             covered_km2=pipe.grid.covered_cells() * cell_km2)
+    finally:
+        pipe.close()
+
+
+def _records(run: EvaluationRun, detector: str, tau: float | None) -> list[DetectionRecord]:
+    """Every detection of one detector (at the model threshold, or at a sweep threshold)."""
+    out = []
+    for u in run.units:
+        dets = u.result.detections[detector] if tau is None else u.result.sweep[detector].get(tau, [])
+        for x in dets:
+            e, n = u.geometry.world(x.row, x.col)
+            out.append(DetectionRecord(u.leg, detector, float(e), float(n), u.t,
+                                       float(u.model.confidence(detector, x.gamma)), float(x.gamma)))
+    return out
+
+
+class Comparison:
+    """All the paper's comparisons for one run against one truth list."""
+
+    def __init__(self, run: EvaluationRun, truth_latlon: np.ndarray) -> None:
+        self.run = run
+        self.gate_m = _gate(run.settings)
+        f = run.frame
+        tl = np.asarray(truth_latlon, dtype=np.float64).reshape(-1, 2)
+        self.truth_en = np.column_stack(f.to_frame(tl[:, 0], tl[:, 1])) if tl.size else np.zeros((0, 2))
+        self.detectors = tuple(run.settings.detectors.enabled)
+
+    # -- methods --------------------------------------------------------------------------
+    def single(self, detector: str) -> RocCurve:
+        pts = [OperatingPoint(math.inf, 0.0, 0, 0, 0)]
+        for tau in sorted(self.run.sweep[detector], reverse=True):
+            recs = _records(self.run, detector, tau)
+            cs = or_contacts(recs, gate_m=self.gate_m)
+            en = np.array([(c.east_m, c.north_m) for c in cs]).reshape(-1, 2)
+            m = match(en, self.truth_en)
+            pts.append(OperatingPoint(tau, len(m) / max(len(self.truth_en), 1), len(cs) - len(m), len(cs), len(m)))
+        return RocCurve(detector.upper(), tuple(pts), len(self.truth_en))
+
+    def logical(self, kind: str, detectors: Sequence[str]) -> RocCurve:
+        recs = [r for d in detectors for r in _records(self.run, d, None)]
+        if kind == "and":
+            cs = and_contacts(recs, gate_m=self.gate_m, detectors=detectors)
+        else:
+            cs = or_contacts(recs, gate_m=self.gate_m)
+        en = np.array([(c.east_m, c.north_m) for c in cs]).reshape(-1, 2)
+        name = f"{kind.upper()} ({', '.join(d.upper() for d in detectors)})"
+        return operating_point(name, en, self.truth_en)
+
+    def fusion(self, detectors: Sequence[str], *, missed: bool, name: str | None = None) -> tuple[RocCurve, list]:
+        contacts, _ = fuse(self.run, detectors, missed=missed)
+        en = np.array([(c.east_m, c.north_m) for c in contacts]).reshape(-1, 2)
+        bel = [c.bel for c in contacts]
+        label = name or f"DS ({', '.join(d.upper() for d in detectors)}){'' if missed else ', no missed-detection evidence'}"
+        return roc(label, en, bel, self.truth_en), contacts
+
+    def ranking(self, singles: dict[str, RocCurve]) -> list[str]:
+        """Detectors from best to weakest: Pd at the model threshold, then fewer false alarms."""
+        def key(d: str):
+            tau = min(self.run.sweep[d], key=lambda t: abs(t - self.run.model.tau.get(d, t)))
+            p = singles[d].at_threshold(tau)
+            return (-p.pd, p.false_alarms)
+        return sorted(singles, key=key)
+
+
+def _gate(settings: Settings) -> float:
+    from ..fusion import association_gate_m
+
+    return association_gate_m(settings.fusion, settings.template)
+
+
+def fuse(run: EvaluationRun, detectors: Sequence[str], *, missed: bool = True,
+         bel_floor: float = EVAL_BEL_FLOOR) -> tuple[list, EvidenceGrid]:
+    """Dempster-Shafer fusion of the run's observations for a detector subset (SPEC 6-7)."""
+    s = run.settings
+    fusion = dataclasses.replace(s.fusion, report_bel=max(bel_floor, 1e-6), withdraw_bel=max(bel_floor, 1e-6))
+    gate = _gate(s)
+    grid = EvidenceGrid(fusion, gate_m=gate, detectors=tuple(detectors))
+    tracker = ContactTracker(fusion, run.frame, gate_m=gate)
+    t_last = 0.0
+    for u in run.units:
+        obs = []
+        for d in detectors:
+            dets = tuple(DetectionEvidence.from_detection(x, float(u.model.confidence(d, x.gamma)))
+                         for x in u.result.detections[d])
+            pd = np.clip(np.nan_to_num(u.model.pd(d, u.ranges_m), nan=0.0), 0.0, 1.0) if missed \
+                else np.zeros(u.ranges_m.size)
+            obs.append(DetectorObservation(d, u.result.covered(d), pd, dets))
+        grid.add_observation(Observation(u.leg, u.t, u.geometry, tuple(obs)))
+        t_last = max(t_last, u.t)
+    grid.close_all()
+    tracker.update(grid, t_last)
+    return list(tracker.live.values()), grid
+
+
+def group_count(records: Sequence[DetectionRecord], gate_m: float) -> int:
+    return group_detections(records, gate_m=gate_m)[0]

@@ -1,0 +1,172 @@
+"""Scoring contacts against ground truth (ICD section 5).
+
+Truth files are CSV with a header ``lat_deg,lon_deg,shape`` (more columns allowed). A contact
+matches a truth target within 3 m horizontal distance; each target matches at most one
+contact and each contact at most one target (a maximum one-to-one matching, nearest pairs
+preferred); contacts that match nothing are false alarms; Pd = matched targets / targets.
+ROC curves sweep a threshold on a score (``bel`` for fusion) and match at each threshold.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from ..errors import AtrError
+
+MATCH_RADIUS_M = 3.0
+EARTH_RADIUS_M = 6371008.8
+
+
+@dataclass(frozen=True)
+class TruthTarget:
+    lat_deg: float
+    lon_deg: float
+    shape: str
+    extra: dict[str, str] = field(default_factory=dict, compare=False)
+
+
+def read_truth(path: str | Path) -> list[TruthTarget]:
+    """Read a truth CSV (ICD section 5); errors name the file, line and column."""
+    p = Path(path)
+    try:
+        fh = open(p, newline="")
+    except OSError as exc:
+        raise AtrError(f"truth file {p}: {exc.strerror}") from None
+    with fh:
+        reader = csv.DictReader(fh)
+        missing = {"lat_deg", "lon_deg", "shape"} - set(reader.fieldnames or ())
+        if missing:
+            raise AtrError(f"truth file {p}: header lacks {sorted(missing)}; expected lat_deg,lon_deg,shape[,...]")
+        out = []
+        for line, row in enumerate(reader, start=2):
+            try:
+                lat, lon = float(row["lat_deg"]), float(row["lon_deg"])
+            except (TypeError, ValueError):
+                raise AtrError(f"truth file {p}, line {line}: lat_deg/lon_deg are not numbers") from None
+            if not (-90 <= lat <= 90 and -180 <= lon <= 360):
+                raise AtrError(f"truth file {p}, line {line}: position {lat}, {lon} out of range")
+            out.append(TruthTarget(lat, lon, row["shape"] or "", {k: v for k, v in row.items()
+                                                                   if k not in ("lat_deg", "lon_deg", "shape")}))
+    return out
+
+
+def local_en(lat: np.ndarray, lon: np.ndarray, lat0: float, lon0: float) -> tuple[np.ndarray, np.ndarray]:
+    """Equirectangular east/north in metres about (lat0, lon0): exact to millimetres over the
+    few kilometres of a mission, which is all a 3 m match needs."""
+    k = math.radians(1.0) * EARTH_RADIUS_M
+    dlon = (np.asarray(lon, dtype=np.float64) - lon0 + 180.0) % 360.0 - 180.0
+    return dlon * k * math.cos(math.radians(lat0)), (np.asarray(lat, dtype=np.float64) - lat0) * k
+
+
+def match(contacts_en: np.ndarray, truth_en: np.ndarray, *, radius_m: float = MATCH_RADIUS_M) -> list[tuple[int, int]]:
+    """Maximum one-to-one matching of contacts to targets within ``radius_m``.
+
+    Among matchings of maximum size, the one with the smallest total distance.
+    Returns (contact index, target index) pairs.
+    """
+    c = np.asarray(contacts_en, dtype=np.float64).reshape(-1, 2)
+    t = np.asarray(truth_en, dtype=np.float64).reshape(-1, 2)
+    if c.size == 0 or t.size == 0:
+        return []
+    d = np.hypot(c[:, None, 0] - t[None, :, 0], c[:, None, 1] - t[None, :, 1])
+    ok = d <= radius_m
+    if not ok.any():
+        return []
+    # a match is worth far more than any distance: maximise matches first, then minimise distance
+    cost = np.where(ok, d - 1e6, 0.0)
+    rows, cols = linear_sum_assignment(cost)
+    return [(int(r), int(k)) for r, k in zip(rows, cols) if ok[r, k]]
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    threshold: float
+    pd: float
+    false_alarms: int
+    contacts: int
+    matched: int
+
+
+@dataclass(frozen=True)
+class RocCurve:
+    """Pd and false alarms as a threshold sweeps a score (one point per distinct score)."""
+
+    name: str
+    points: tuple[OperatingPoint, ...]
+    n_targets: int
+
+    @property
+    def pd(self) -> np.ndarray:
+        return np.array([p.pd for p in self.points])
+
+    @property
+    def false_alarms(self) -> np.ndarray:
+        return np.array([p.false_alarms for p in self.points])
+
+    def best_pd(self) -> float:
+        return float(self.pd.max(initial=0.0))
+
+    def fa_at_pd(self, pd: float) -> float:
+        """Fewest false alarms at which Pd reaches ``pd`` (inf when it never does)."""
+        fa = [p.false_alarms for p in self.points if p.pd >= pd - 1e-12]
+        return float(min(fa)) if fa else math.inf
+
+    def at_threshold(self, threshold: float) -> OperatingPoint:
+        """The operating point of the smallest swept threshold >= ``threshold``."""
+        cands = [p for p in self.points if p.threshold >= threshold]
+        if not cands:
+            return OperatingPoint(threshold, 0.0, 0, 0, 0)
+        return min(cands, key=lambda p: p.threshold)
+
+
+def roc(name: str, contacts_en: np.ndarray, scores: Sequence[float], truth_en: np.ndarray, *,
+        radius_m: float = MATCH_RADIUS_M, max_points: int = 400) -> RocCurve:
+    """Sweep a threshold over ``scores``: at each, contacts with score >= threshold are matched."""
+    c = np.asarray(contacts_en, dtype=np.float64).reshape(-1, 2)
+    s = np.asarray(scores, dtype=np.float64).reshape(-1)
+    n_t = int(np.asarray(truth_en).reshape(-1, 2).shape[0])
+    if s.size == 0:
+        return RocCurve(name, (OperatingPoint(math.inf, 0.0, 0, 0, 0),), n_t)
+    levels = np.unique(s)[::-1]
+    if levels.size > max_points:
+        levels = np.unique(np.quantile(s, np.linspace(0, 1, max_points)))[::-1]
+    pts = [OperatingPoint(math.inf, 0.0, 0, 0, 0)]
+    for thr in levels:
+        keep = s >= thr
+        m = match(c[keep], truth_en, radius_m=radius_m)
+        n = int(keep.sum())
+        pts.append(OperatingPoint(float(thr), len(m) / max(n_t, 1), n - len(m), n, len(m)))
+    return RocCurve(name, tuple(pts), n_t)
+
+
+def operating_point(name: str, contacts_en: np.ndarray, truth_en: np.ndarray, *,
+                    radius_m: float = MATCH_RADIUS_M) -> RocCurve:
+    """A single operating point (logical AND / OR) as a one-point curve."""
+    c = np.asarray(contacts_en, dtype=np.float64).reshape(-1, 2)
+    n_t = int(np.asarray(truth_en).reshape(-1, 2).shape[0])
+    m = match(c, truth_en, radius_m=radius_m)
+    n = int(c.shape[0])
+    return RocCurve(name, (OperatingPoint(0.0, len(m) / max(n_t, 1), n - len(m), n, len(m)),), n_t)
+
+
+def contacts_from_jsonl(path: str | Path) -> list[dict[str, Any]]:
+    """Contacts written by ``--contacts-out`` (final states); errors name the line."""
+    import json
+
+    out = []
+    with open(path) as fh:
+        for line, text in enumerate(fh, start=1):
+            if not text.strip():
+                continue
+            try:
+                out.append(json.loads(text))
+            except json.JSONDecodeError as exc:
+                raise AtrError(f"contacts file {path}, line {line}: not JSON ({exc.msg})") from None
+    return out
