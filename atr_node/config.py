@@ -170,13 +170,15 @@ class SimulationSettings:
     """Ground swath per side; legs are spaced by it, so most of the area is seen twice."""
     mission_targets: int = 16
     mission_shapes: tuple[str, ...] = ("cylinder", "cone", "wedge")
+    """Built-in shapes, or mesh files (.stl/.obj, relative to the config file)."""
     mission_tile_pings: int = 256
     mission_clutter_per_km2: float = 2000.0
     """Rocks and other clutter, fixed in the world (seen at the same place on every leg)."""
     mission_ripples: bool = False
     """Add sand-ripple fields (the "hard" variant turns them on, with dense clutter)."""
     mission_nav_error_m: float = 1.0
-    """1-sigma of the per-leg navigation offset (the tile nav differs from the truth)."""
+    """Horizontal 1-sigma of the per-leg navigation offset (the recorded nav differs from the
+    truth by it, plus a drift along the leg of about a third of it)."""
     mission_speed_m_s: float = 2.0
     mission_origin_lat_deg: float = 44.08
     mission_origin_lon_deg: float = 9.85
@@ -187,6 +189,10 @@ class SimulationSettings:
         _check(self.mission_swath_m > 0, "simulation.mission_swath_m", "must be > 0")
         _check(self.mission_targets >= 0, "simulation.mission_targets", "must be >= 0")
         _check(len(self.mission_shapes) >= 1, "simulation.mission_shapes", "must name at least one shape")
+        bad = [s for s in self.mission_shapes if s not in ("cylinder", "cone", "wedge", "sphere", "box")
+               and not s.lower().endswith((".stl", ".obj"))]
+        _check(not bad, "simulation.mission_shapes",
+               f"unknown shape(s) {bad}; expected cylinder, cone, wedge, sphere, box or a .stl/.obj file")
         _check(self.mission_tile_pings >= 16, "simulation.mission_tile_pings", "must be >= 16")
         _check(self.mission_clutter_per_km2 >= 0, "simulation.mission_clutter_per_km2", "must be >= 0")
         _check(self.mission_nav_error_m >= 0, "simulation.mission_nav_error_m", "must be >= 0")
@@ -240,8 +246,9 @@ class FusionSettings:
     """Dempster-Shafer fusion and the evidence grid (SPEC sections 6-7)."""
 
     cell_m: float = 0.5
-    chunk_cells: int = 64
-    """A chunk is chunk_cells x chunk_cells cells, allocated only where covered."""
+    chunk_cells: int = 32
+    """A chunk is chunk_cells x chunk_cells cells, allocated only where covered (a power of
+    two is fastest); smaller chunks waste less at coverage edges (docs/fusion.md)."""
     eps: float = 1e-9
     """Masses are clamped to [0, 1 - eps] so total conflict cannot occur."""
     nav_sigma_m: float = 1.0
@@ -286,6 +293,13 @@ class LinkSettings:
     can_dbc: str = "atr_node.dbc"
     """DBC file, relative to the config file's folder when not absolute."""
     publish_endpoint: str = "tcp://127.0.0.1:5560"
+    curve_secret_key_file: str = ""
+    """ZeroMQ CURVE: the node's secret certificate (mode 0600); empty = CURVE off (bench loopback).
+    See atr_node.security and docs/reliability.md."""
+    curve_authorized_dir: str = ""
+    """CURVE: folder of public keys (*.key) allowed on the PUB and bound tile sockets; empty = any holder of the node's public key."""
+    sonar_server_key_file: str = ""
+    """CURVE: the sonar processor's public key, when the tile socket connects to it."""
 
 
 @dataclass(frozen=True)
@@ -435,6 +449,8 @@ def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
             table = tomllib.load(fh)
     except FileNotFoundError:
         raise ConfigError("file not found", path=str(path)) from None
+    except OSError as exc:  # a folder (include = ""), no permission, ...
+        raise ConfigError(f"cannot read: {exc.strerror}", path=str(path)) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"not valid TOML: {exc}", path=str(path)) from None
     include = table.get("include")

@@ -1,0 +1,256 @@
+"""Injection of simulated targets into any ground-range tile, with their exact truth.
+
+:func:`inject_targets` is the shared simulation API (the engineers' contracts): it places targets (given
+or random, apart from each other and from the edges, on valid pixels), traces them
+(:mod:`.raytrace`), applies the along-track beam and blends them into a copy of the pixels
+(:mod:`.signature`) with the contrast of the sonar model (:mod:`.performance`).
+
+Truth anchor (shared convention, SPEC section 1): ``row`` = the row of the target's
+along-track centre; ``col`` = the first column of its shadow, i.e. the boundary between the
+echo zone and the shadow zone: along the anchor row, the first column past the brightest one
+where the model's mean gray level falls below half the background (:func:`anchor_column`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from ..config import SensorSettings, SimulationSettings, TemplateSettings
+from ..errors import GeometryError
+from .meshes import Mesh, builtin_mesh, place
+from .performance import SonarModel
+from .raytrace import Signature, trace
+from .signature import along_track_kernel, background_curve, blur_along_track, render
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where and how to put one target in a tile.
+
+    ``row`` may be fractional (along-track centre in rows); ``heading_deg`` is the angle of
+    the target's axis from the along-track axis towards increasing range.
+    """
+
+    shape: str
+    row: float
+    range_m: float
+    heading_deg: float = 0.0
+    burial_m: float = 0.0
+    mesh: Mesh | None = field(default=None, compare=False)
+    """A custom mesh (local frame, see :mod:`.meshes`); None: the built-in ``shape``."""
+
+
+@dataclass(frozen=True)
+class InjectedTarget:
+    """Truth of one injected target."""
+
+    shape: str
+    row: int
+    """Anchor row: the target's along-track centre (outside 0..rows-1 for a target cut by
+    the tile's edge, which a mission renders in both tiles)."""
+    col: int
+    """Anchor column: the first column of its shadow (echo/shadow boundary)."""
+    range_m: float
+    """Ground range of the target's centre."""
+    heading_deg: float
+    burial_m: float
+    footprint: tuple[int, int, int, int]
+    """(row0, row1, col0, col1), half-open: every modified pixel is inside."""
+    echo_sum: float
+    """Sum of the echo strength e over the footprint."""
+    shadow_px: float
+    """Sum of p_shadow over the footprint (hidden pixels)."""
+    rho_shadow: float
+    """Model shadow-to-background intensity ratio at ``range_m``."""
+    rho_echo: float
+    """Model echo-to-background intensity ratio at ``range_m``."""
+
+
+def anchor_column(sig: Signature, row: int, rho_shadow: np.ndarray, rho_echo: np.ndarray) -> int:
+    """Tile column of the echo/shadow boundary of a signature along ``row`` (see module doc).
+
+    The model's mean gray level relative to the background,
+    ``m = p_seabed + p_shadow rho_shadow + e rho_echo`` (per tile column for the rho arrays),
+    is followed from its brightest column outwards; the anchor is the first column where it
+    falls below 1/2 (the start of the dark shadow), or, without any, the column past the echo.
+    """
+    i = min(max(row - sig.row0, 0), sig.shape[0] - 1)
+    c0, c1 = sig.col0, sig.col0 + sig.shape[1]
+    e = sig.echo[i].astype(np.float64)
+    p = sig.p_shadow[i].astype(np.float64)
+    m = (1.0 - p) + p * rho_shadow[c0:c1] + e * rho_echo[c0:c1]
+    peak = int(np.argmax(m))
+    dark = (np.arange(m.size) > peak) & (m < 0.5)
+    if dark.any():
+        return c0 + int(np.argmax(dark))
+    first_dark = np.flatnonzero(m < 0.5)  # no highlight before the shadow (weak echo near nadir)
+    if first_dark.size:
+        return c0 + int(first_dark[0])
+    lit = np.flatnonzero(e > 0)
+    return c0 + (min(int(lit[-1]) + 1, m.size - 1) if lit.size else m.size // 2)
+
+
+@lru_cache(maxsize=4096)
+def _kernel(range_m: float, dx_m: float, sensor: SensorSettings) -> np.ndarray:
+    """The along-track beam at a range rounded to 10 cm (cached: it changes slowly)."""
+    k = along_track_kernel(range_m, dx_m=dx_m, sensor=sensor)
+    k.setflags(write=False)
+    return k
+
+
+@lru_cache(maxsize=64)
+def _ratios(model: SonarModel, range0_m: float, dr_m: float, cols: int,
+            altitude_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(rho_shadow, rho_echo) per tile column; cached, as calibration calls with one geometry."""
+    rs, re = model.ratios(range0_m + dr_m * np.arange(cols), altitude_m)
+    rs.setflags(write=False)
+    re.setflags(write=False)
+    return rs, re
+
+
+def _mesh_for(p: Placement) -> Mesh:
+    return p.mesh if p.mesh is not None else builtin_mesh(p.shape)
+
+
+def _altitude(altitude_m: float | np.ndarray) -> float:
+    a = np.asarray(altitude_m, dtype=np.float64)
+    alt = float(np.nanmean(a)) if a.size else float("nan")
+    if not (math.isfinite(alt) and alt > 0):
+        raise GeometryError(f"altitude must be finite and > 0, got {altitude_m!r}")
+    return alt
+
+
+def _overlaps(fp: tuple[int, int, int, int], taken: list[tuple[int, int, int, int]], gap: tuple[int, int]) -> bool:
+    r0, r1, c0, c1 = fp
+    for q0, q1, d0, d1 in taken:
+        if r0 < q1 + gap[0] and q0 < r1 + gap[0] and c0 < d1 + gap[1] and d0 < c1 + gap[1]:
+            return True
+    return False
+
+
+def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: float,
+                   altitude_m: float | np.ndarray, n_targets: int | None = None,
+                   placements: list[Placement] | None = None, rng: np.random.Generator,
+                   sensor: SensorSettings | None = None, simulation: SimulationSettings | None = None,
+                   template: TemplateSettings | None = None, kind: str = "intensity",
+                   shapes: tuple[str, ...] = ("cylinder", "cone", "wedge", "sphere"),
+                   range_span_m: tuple[float, float] | None = None, max_burial_m: float = 0.0,
+                   g: np.ndarray | None = None, max_tries: int = 30) -> tuple[np.ndarray, list[InjectedTarget]]:
+    """Inject simulated targets into a copy of a ground-range tile.
+
+    Parameters
+    ----------
+    pixels : ndarray, shape (rows, cols)
+        Host pixels (linear intensity or amplitude, NaN = no data); not modified.
+    range0_m, dr_m, dx_m
+        Ground range of column 0, range-bin and ping spacing.
+    altitude_m
+        Sensor altitude (a scalar, or per-row values whose mean is used).
+    n_targets
+        Number of random targets (ignored when ``placements`` is given).
+    placements
+        Exact placements; a target whose signature falls outside the tile is skipped.
+    rng
+        Random generator (placement and speckle).
+    sensor, simulation, template
+        Settings (defaults when None); ``template`` sets the spacing between random targets
+        and from the edges (the SMF context window of SPEC section 2.3).
+    kind
+        ``"intensity"`` or ``"amplitude"``.
+    shapes
+        Built-in shapes drawn for random targets.
+    range_span_m
+        Ground ranges allowed for random targets (default: the whole tile).
+    max_burial_m
+        Random burial depth is uniform in [0, max_burial_m].
+    g : ndarray, shape (cols,), optional
+        Background intensity curve g(r); default: measured on this tile.
+    max_tries
+        Random draws per requested target before giving up on it.
+
+    Returns
+    -------
+    new_pixels : ndarray, shape (rows, cols), float32
+    targets : list of InjectedTarget
+        In placement order; fewer than ``n_targets`` when the tile has no room (logged).
+    """
+    sensor = sensor or SensorSettings()
+    simulation = simulation or SimulationSettings()
+    template = template or TemplateSettings()
+    if kind not in ("intensity", "amplitude"):
+        raise GeometryError(f"kind must be 'intensity' or 'amplitude', got {kind!r}")
+    host = np.array(pixels, dtype=np.float32, copy=True)
+    if host.ndim != 2:
+        raise GeometryError(f"pixels must be 2-D (rows, cols), got shape {host.shape}")
+    rows, cols = host.shape
+    H = _altitude(altitude_m)
+    ranges = range0_m + dr_m * np.arange(cols)
+    if g is None:
+        inten = host.astype(np.float64) ** 2 if kind == "amplitude" else host
+        g = background_curve(inten)
+    g = np.asarray(g, dtype=np.float64)
+    if g.shape != (cols,):
+        raise GeometryError(f"g must hold one background intensity per column ({cols},), got shape {g.shape}")
+    rho_s, rho_e = _ratios(SonarModel.from_settings(sensor, simulation), float(range0_m), float(dr_m), cols, H)
+    k = simulation.subrays
+    targets: list[InjectedTarget] = []
+    taken: list[tuple[int, int, int, int]] = []
+
+    def do(p: Placement, check: bool) -> bool:
+        mesh = place(_mesh_for(p), along_m=p.row * dx_m, range_m=p.range_m, heading_deg=p.heading_deg,
+                     burial_m=p.burial_m)
+        sig = trace(mesh, range0_m=range0_m, dr_m=dr_m, dx_m=dx_m, rows=rows, cols=cols, altitude_m=H, subrays=k)
+        if sig.empty or (sig.echo.max() <= 0 and sig.p_shadow.max() <= 0):
+            return False
+        sig = blur_along_track(sig, _kernel(round(p.range_m, 1), dx_m, sensor), rows)
+        fp = sig.footprint
+        if check:
+            if fp[0] < gap[0] or fp[1] > rows - gap[0] or fp[2] < 1 or fp[3] > cols - 1:
+                return False
+            if _overlaps(fp, taken, gap):
+                return False
+            win = host[fp[0]:fp[1], fp[2]:fp[3]]
+            if np.isnan(win).mean() > 0.05 or not np.all(np.isfinite(g[fp[2]:fp[3]])):
+                return False
+        render(host, sig, g=g, rho_shadow=rho_s, rho_echo=rho_e, rng=rng, kind=kind)
+        row = int(round(p.row))
+        col = anchor_column(sig, row, rho_s, rho_e)
+        jc = min(max(int(round((p.range_m - range0_m) / dr_m)), 0), cols - 1)
+        targets.append(InjectedTarget(shape=p.shape, row=row, col=col, range_m=float(p.range_m),
+                                      heading_deg=float(p.heading_deg) % 360.0, burial_m=float(p.burial_m),
+                                      footprint=fp, echo_sum=float(sig.echo.sum()),
+                                      shadow_px=float(sig.p_shadow.sum()), rho_shadow=float(rho_s[jc]),
+                                      rho_echo=float(rho_e[jc])))
+        taken.append(fp)
+        return True
+
+    # Random targets keep the SMF context window (SPEC 2.3) of each other and of the edges.
+    gap = (int(math.ceil(template.context_factor * template.length_m / dx_m / 2)),
+           int(math.ceil(template.context_factor * template.echo_width_m / dr_m)))
+    if placements is not None:
+        for p in placements:
+            if not do(p, check=False):
+                log.info("target %s at row %.1f, range %.1f m is outside the tile: skipped", p.shape, p.row, p.range_m)
+        return host, targets
+    n = int(n_targets or 0)
+    lo, hi = range_span_m if range_span_m is not None else (ranges[0], ranges[-1])
+    lo, hi = max(lo, ranges[0]), min(hi, ranges[-1])
+    if n <= 0 or hi <= lo:
+        return host, targets
+    for _ in range(n):
+        for _try in range(max_tries):
+            p = Placement(shape=str(rng.choice(shapes)), row=float(rng.uniform(gap[0], rows - gap[0])),
+                          range_m=float(rng.uniform(lo, hi)), heading_deg=float(rng.uniform(0.0, 360.0)),
+                          burial_m=float(rng.uniform(0.0, max_burial_m)) if max_burial_m > 0 else 0.0)
+            if do(p, check=True):
+                break
+    if len(targets) < n:
+        log.info("placed %d of %d targets: the tile has no room for more", len(targets), n)
+    return host, targets
