@@ -10,6 +10,7 @@ says what was wrong, where (file, key, tile, byte offset) and what was expected:
      +-- LogFormatError        an .atrlog record (names the file and the byte offset)
      +-- ModelFileError        a detector performance-model file (version, corruption)
      +-- GeometryError         impossible geometry (altitude, ranges, frames)
+     +-- FusionError           evidence, masses or an evidence-grid snapshot (names which)
      +-- NotBuiltError         a command or feature that is not built yet
 
 Link drivers (package ``hw``) derive their errors from ``hw.errors.LinkError``, itself an
@@ -63,6 +64,11 @@ class ModelFileError(AtrError, ValueError):
 
 class GeometryError(AtrError, ValueError):
     """Impossible sensor or target geometry."""
+
+
+class FusionError(AtrError, ValueError):
+    """Evidence that breaks SPEC sections 6-7 (masses outside [0, 1], total conflict, a closed
+    leg observed again, shapes that disagree) or an unreadable evidence-grid snapshot."""
 
 
 class NotBuiltError(AtrError):

@@ -1,0 +1,228 @@
+"""Contacts from the evidence grid: extraction, stable ids, new / update / withdrawn (SPEC section 7).
+
+A contact is an 8-connected region of cells whose Bel(T) is at least ``withdraw_bel``
+holding a cell at ``report_bel`` or more (hysteresis: a contact is born at ``report_bel``
+and lives until its region falls below ``withdraw_bel``). Its position is the
+belief-weighted centroid of the region's cell centres; ``bel``, ``pl`` and ``m_theta`` are
+those of the region's peak cell; ``sigma_m`` is the belief-weighted spread of the region
+(per-axis RMS, plus a cell's quantisation ``cell_m / sqrt(12)``), which the association gate
+(navigation uncertainty plus template size) dominates.
+
+Ids stay stable: after each update, regions are matched one-to-one to the live contacts by
+nearest centroid within the association gate; a region without a match becomes a new
+contact, a live contact without a region is withdrawn. Only chunks of the grid changed since
+the last update are re-evaluated (``EvidenceGrid.changed_since``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from ..config import FusionSettings
+from ..geo import MissionFrame
+from .grid import EvidenceGrid
+from .mass import closed_form
+
+STATES = ("new", "update", "withdrawn")
+_OFF = np.int64(1 << 30)
+
+
+@dataclass(frozen=True)
+class Contact:
+    """One contact, with exactly the fields of the ICD section 3 ``contact`` message."""
+
+    id: int
+    state: str
+    t: float
+    lat_deg: float
+    lon_deg: float
+    east_m: float
+    north_m: float
+    sigma_m: float
+    bel: float
+    pl: float
+    m_theta: float
+    looks: int
+    detections: int
+    detectors: tuple[str, ...]
+    legs: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        if self.state not in STATES:
+            raise ValueError(f"contact {self.id}: state {self.state!r} is not one of {STATES}")
+
+    def to_message(self) -> dict[str, Any]:
+        """The ICD section 3 map (type ``contact``, v 1), plain Python types only."""
+        return {"type": "contact", "v": 1, "id": int(self.id), "state": self.state, "t": float(self.t),
+                "lat_deg": float(self.lat_deg), "lon_deg": float(self.lon_deg), "east_m": float(self.east_m),
+                "north_m": float(self.north_m), "sigma_m": float(self.sigma_m), "bel": float(self.bel),
+                "pl": float(self.pl), "m_theta": float(self.m_theta), "looks": int(self.looks),
+                "detections": int(self.detections), "detectors": [str(d) for d in self.detectors],
+                "legs": [int(x) for x in self.legs]}
+
+    @classmethod
+    def from_message(cls, m: dict[str, Any]) -> "Contact":
+        fields = {f.name for f in dataclasses.fields(cls)}
+        kw = {k: v for k, v in m.items() if k in fields}
+        kw["detectors"] = tuple(kw["detectors"])
+        kw["legs"] = tuple(kw["legs"])
+        return cls(**kw)
+
+    def same_content(self, other: "Contact") -> bool:
+        """Equal apart from state and time (nothing new to publish)."""
+        a, b = dataclasses.asdict(self), dataclasses.asdict(other)
+        for k in ("state", "t"):
+            a.pop(k), b.pop(k)
+        return a == b
+
+
+def label_cells(iy: np.ndarray, ix: np.ndarray) -> tuple[int, np.ndarray]:
+    """8-connected components of a sparse set of distinct cells; (n, labels (K,))."""
+    k = iy.size
+    if k == 0:
+        return 0, np.zeros(0, dtype=np.int64)
+    code = (iy + _OFF) * (2 * _OFF) + (ix + _OFF)
+    order = np.argsort(code)
+    sc = code[order]
+    src, dst = [np.arange(k)], [np.arange(k)]
+    for dy, dx in ((0, 1), (1, -1), (1, 0), (1, 1)):
+        want = code + dy * (2 * _OFF) + dx
+        pos = np.minimum(np.searchsorted(sc, want), k - 1)
+        hit = sc[pos] == want
+        src.append(np.flatnonzero(hit))
+        dst.append(order[pos[hit]])
+    s, d = np.concatenate(src), np.concatenate(dst)
+    graph = coo_matrix((np.ones(s.size, dtype=np.int8), (s, d)), shape=(k, k))
+    n, labels = connected_components(graph, directed=False)
+    return int(n), labels.astype(np.int64)
+
+
+class ContactTracker:
+    """Extracts contacts from an :class:`EvidenceGrid` and keeps their ids stable."""
+
+    def __init__(self, fusion: FusionSettings, frame: MissionFrame, *, gate_m: float) -> None:
+        self.fusion, self.frame, self.gate_m = fusion, frame, float(gate_m)
+        self.next_id = 1
+        self.live: dict[int, Contact] = {}
+        self.history: dict[int, Contact] = {}
+        """Last message of every contact ever published (final states)."""
+        self._stamp = 0
+        self._cells: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+
+    def _refresh(self, grid: EvidenceGrid) -> None:
+        keys = grid.changed_since(self._stamp)
+        self._stamp = grid.stamp
+        if not keys:
+            return
+        acc = grid.chunk_accumulators(keys)
+        n = grid.n
+        local = np.arange(grid.nn)
+        for key, a in zip(keys, acc):
+            if not (a[0] < 0.0).any():  # no T evidence: Bel(T) = 0 everywhere
+                self._cells.pop(key, None)
+                continue
+            m = closed_form(a[0], a[1])
+            sel = np.flatnonzero(m.m_t >= self.fusion.withdraw_bel)
+            if sel.size == 0:
+                self._cells.pop(key, None)
+                continue
+            self._cells[key] = (key[0] * n + local[sel] // n, key[1] * n + local[sel] % n,
+                                m.m_t[sel], m.m_n[sel], m.m_theta[sel])
+
+    def update(self, grid: EvidenceGrid, t: float) -> list[Contact]:
+        """Re-extract contacts after new evidence; return the messages to publish."""
+        self._refresh(grid)
+        parts = list(self._cells.values())
+        if parts:
+            iy, ix, bel, mn, mth = (np.concatenate([p[i] for p in parts]) for i in range(5))
+        else:
+            iy = ix = np.zeros(0, dtype=np.int64)
+            bel = mn = mth = np.zeros(0)
+        n_comp, lab = label_cells(iy, ix)
+        e, nn_ = grid.cell_centre(iy, ix)
+        w = np.bincount(lab, weights=bel, minlength=n_comp)
+        ce = np.bincount(lab, weights=bel * e, minlength=n_comp) / np.maximum(w, 1e-300)
+        cn = np.bincount(lab, weights=bel * nn_, minlength=n_comp) / np.maximum(w, 1e-300)
+        var = np.bincount(lab, weights=bel * ((e - ce[lab]) ** 2 + (nn_ - cn[lab]) ** 2), minlength=n_comp)
+        sigma = np.sqrt(0.5 * var / np.maximum(w, 1e-300) + grid.cell_m ** 2 / 12.0)
+        peak = np.zeros(n_comp, dtype=np.int64)
+        if n_comp:
+            order = np.lexsort((bel, lab))  # last of each label = its peak cell
+            last = np.flatnonzero(np.r_[lab[order][1:] != lab[order][:-1], True])
+            peak[lab[order][last]] = order[last]
+        # one-to-one matching, nearest first, within the gate
+        pairs = []
+        for cid, c in self.live.items():
+            d = np.hypot(ce - c.east_m, cn - c.north_m)
+            for j in np.flatnonzero(d <= self.gate_m):
+                pairs.append((float(d[j]), cid, int(j)))
+        pairs.sort()
+        comp_id: dict[int, int] = {}
+        used: set[int] = set()
+        for _, cid, j in pairs:
+            if cid not in used and j not in comp_id:
+                comp_id[j] = cid
+                used.add(cid)
+        det_lab = self._detection_labels(grid, iy, ix, lab)
+        out: list[Contact] = []
+        for j in range(n_comp):
+            p = peak[j]
+            if j not in comp_id and bel[p] < self.fusion.report_bel:
+                continue
+            cid = comp_id.get(j)
+            state = "update" if cid is not None else "new"
+            if cid is None:
+                cid, self.next_id = self.next_id, self.next_id + 1
+            legs = tuple(grid.legs_at(int(iy[p]), int(ix[p])))
+            dets = [grid.detections[i] for i in np.flatnonzero(det_lab == j)]
+            lat, lon = self.frame.to_latlon(ce[j], cn[j])
+            c = Contact(id=cid, state=state, t=float(t), lat_deg=float(lat), lon_deg=float(lon),
+                        east_m=float(ce[j]), north_m=float(cn[j]), sigma_m=float(sigma[j]), bel=float(bel[p]),
+                        pl=float(1.0 - mn[p]), m_theta=float(mth[p]), looks=len(legs), detections=len(dets),
+                        detectors=tuple(d for d in grid.detectors if any(r.detector == d for r in dets)),
+                        legs=legs)
+            if state == "update" and c.same_content(self.live[cid]):
+                continue
+            self.live[cid] = c
+            out.append(c)
+        for cid in sorted(set(self.live) - set(comp_id.values()) - {c.id for c in out}):
+            old = self.live.pop(cid)
+            m = grid.masses_at(old.east_m, old.north_m)
+            out.append(dataclasses.replace(old, state="withdrawn", t=float(t), bel=float(m.m_t),
+                                           pl=float(1.0 - m.m_n), m_theta=float(m.m_theta)))
+        for c in out:
+            self.history[c.id] = c
+        return out
+
+    @staticmethod
+    def _detection_labels(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, lab: np.ndarray) -> np.ndarray:
+        """Component label of each grid detection's cell (-1: not in any candidate region)."""
+        if not grid.detections or iy.size == 0:
+            return np.full(len(grid.detections), -1, dtype=np.int64)
+        de = np.array([r.east_m for r in grid.detections])
+        dn = np.array([r.north_m for r in grid.detections])
+        dy, dx = grid.cell_of(de, dn)
+        code = (iy + _OFF) * (2 * _OFF) + (ix + _OFF)
+        want = (dy + _OFF) * (2 * _OFF) + (dx + _OFF)
+        order = np.argsort(code)
+        pos = np.minimum(np.searchsorted(code[order], want), code.size - 1)
+        hit = code[order][pos] == want
+        return np.where(hit, lab[order[pos]], -1)
+
+    # -- state for snapshots --------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        return {"next_id": self.next_id, "live": [c.to_message() for c in self.live.values()],
+                "history": [c.to_message() for c in self.history.values()]}
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """Restore ids and live contacts; the cell cache is rebuilt from the grid on the next update."""
+        self.next_id = int(state["next_id"])
+        self.live = {int(m["id"]): Contact.from_message(m) for m in state["live"]}
+        self.history = {int(m["id"]): Contact.from_message(m) for m in state["history"]}
+        self._stamp, self._cells = 0, {}

@@ -1,0 +1,107 @@
+"""Contacts: extraction, stable ids, new / update / withdrawn, the ICD message (SPEC 7, ICD 3)."""
+
+from __future__ import annotations
+
+import msgpack
+import numpy as np
+import pytest
+
+from atr_node.config import FusionSettings
+from atr_node.fusion import Contact, ContactTracker, EvidenceGrid, and_contacts, or_contacts
+from atr_node.fusion.contacts import label_cells
+
+from .conftest import DETS, TARGETS, mission_observations
+from .test_grid import TARGET, leg1, leg2
+
+ICD_KEYS = {"type", "v", "id", "state", "t", "lat_deg", "lon_deg", "east_m", "north_m", "sigma_m", "bel", "pl",
+            "m_theta", "looks", "detections", "detectors", "legs"}
+
+
+def test_label_cells_against_brute_force():
+    rng = np.random.default_rng(2)
+    mask = rng.uniform(size=(30, 40)) < 0.35
+    iy, ix = np.nonzero(mask)
+    iy, ix = iy - 15, ix - 7  # negative indices too
+    n, lab = label_cells(iy.astype(np.int64), ix.astype(np.int64))
+    from scipy import ndimage
+    ref, nref = ndimage.label(mask, structure=np.ones((3, 3)))
+    assert n == nref
+    ref_lab = ref[mask]
+    # the same partition: a bijection between labels
+    pairs = set(zip(lab.tolist(), ref_lab.tolist()))
+    assert len(pairs) == n
+
+
+def test_mission_contacts_have_stable_ids_and_icd_messages(frame):
+    fusion = FusionSettings()
+    grid = EvidenceGrid(fusion, gate_m=3.0)
+    tracker = ContactTracker(fusion, frame, gate_m=3.0)
+    seen: dict[int, list[Contact]] = {}
+    for o in mission_observations(frame):
+        grid.add_observation(o)
+        for c in tracker.update(grid, o.t):
+            seen.setdefault(c.id, []).append(c)
+            assert c.t == o.t
+    assert len(seen) == len(TARGETS)
+    for cid, msgs in seen.items():
+        assert msgs[0].state == "new" and all(m.state == "update" for m in msgs[1:])
+        last = msgs[-1]
+        # the id stays on one target all along
+        dists = [min(np.hypot(m.east_m - te, m.north_m - tn) for te, tn in TARGETS) for m in msgs]
+        assert max(dists) < 0.5
+        assert last.looks == len(last.legs) >= 2 and last.bel >= fusion.report_bel
+        assert last.pl >= last.bel and abs(last.bel + (1 - last.pl) + last.m_theta - 1) < 1e-12
+        assert set(last.detectors) <= set(DETS) and last.detections >= 2
+        lat, lon = frame.to_latlon(last.east_m, last.north_m)
+        assert (last.lat_deg, last.lon_deg) == (float(lat), float(lon))
+        msg = last.to_message()
+        assert set(msg) == ICD_KEYS and msg["type"] == "contact" and msg["v"] == 1
+        wire = msgpack.unpackb(msgpack.packb(msg, use_bin_type=True), raw=False)
+        assert Contact.from_message(wire) == last
+    # nothing changed: nothing to publish
+    assert tracker.update(grid, 9999.0) == []
+
+
+def test_contact_is_withdrawn_after_a_miss_where_pd_is_high(frame):
+    fusion = FusionSettings()
+    grid = EvidenceGrid(fusion, gate_m=3.0)
+    tracker = ContactTracker(fusion, frame, gate_m=3.0)
+    grid.add_observation(leg1(frame)[1])
+    (c,) = tracker.update(grid, 1.0)
+    assert c.state == "new" and c.id == 1 and c.legs == (1,)
+    assert np.hypot(c.east_m - TARGET[0], c.north_m - TARGET[1]) < 0.3
+    grid.add_observation(leg2(frame, east0_m=100.0)[1])
+    (w,) = tracker.update(grid, 2.0)
+    assert w.state == "withdrawn" and w.id == 1 and w.bel < fusion.withdraw_bel
+    assert float(grid.masses_at(w.east_m, w.north_m).m_t) == w.bel
+    assert tracker.live == {} and tracker.history[1].state == "withdrawn"
+
+
+def test_hysteresis_between_report_and_withdraw(frame):
+    fusion = FusionSettings(report_bel=0.7, withdraw_bel=0.3)
+    grid = EvidenceGrid(fusion, gate_m=1.0)
+    tracker = ContactTracker(fusion, frame, gate_m=1.0)
+    iy, ix = grid.cell_of(10.0, 10.0)
+    grid.deposit(1, "mf", 1.0, iy, ix, m_t=0.5)  # Bel 0.5: between the thresholds, not born
+    assert tracker.update(grid, 1.0) == []
+    grid.deposit(2, "mf", 2.0, iy, ix, m_t=0.6)  # Bel 0.8: born
+    assert [c.state for c in tracker.update(grid, 2.0)] == ["new"]
+    grid.deposit(3, "mf", 3.0, iy, ix, m_n=0.8)  # Bel 0.8*0.2/(0.2+0.2-0.04) = 0.44: lives on
+    (u,) = tracker.update(grid, 3.0)
+    assert u.state == "update" and u.bel == pytest.approx(0.8 * 0.2 / 0.36, abs=1e-12)
+
+
+def test_and_or_baselines(frame):
+    grid = EvidenceGrid(FusionSettings(), gate_m=3.0)
+    for o in mission_observations(frame):
+        grid.add_observation(o)
+    ors = or_contacts(grid.detections, gate_m=3.0)
+    ands = and_contacts(grid.detections, gate_m=3.0, detectors=DETS)
+    # every target is an OR contact and, with 4 legs at Pd 0.8 each, an AND contact
+    for te, tn in TARGETS:
+        assert min(np.hypot(c.east_m - te, c.north_m - tn) for c in ors) < 1.0
+        assert min(np.hypot(c.east_m - te, c.north_m - tn) for c in ands) < 1.0
+    assert len(ands) == len(TARGETS) < len(ors)
+    assert sum(c.detections for c in ors) == len(grid.detections)
+    three = and_contacts(grid.detections, gate_m=3.0, detectors=("lac", "smf"))
+    assert all(set(c.detectors) == {"lac", "smf"} for c in three)
