@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "batch": ("process many recordings on a Dask cluster and merge their evidence", "scale-out"),
     "monitor": ("live view of a node: heartbeat and contacts", "operators' tools"),
     "export": ("export contacts to GeoJSON, KML or CSV", "operators' tools"),
+    "exwpt": ("send a live node's contacts over serial as SonarWiz $EXWPT sentences", "operators' tools"),
     "info": ("show the settings a config file gives, and what is built", "foundation"),
 }
 

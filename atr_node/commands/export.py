@@ -1,0 +1,99 @@
+"""Export the contact list to GeoJSON, KML or CSV, from a live node or a --contacts-out file.
+
+From a file (``atr-node replay --contacts-out FILE``)::
+
+    atr-node export --contacts contacts.jsonl -o contacts.geojson -o contacts.kml -o contacts.csv
+
+From a live node (its PUB endpoint, ICD section 3): the contacts published while following,
+latest state per id, written when the node falls silent (--until-silent, default 5 s), after
+--duration, or on Ctrl-C; with --refresh S the files are also rewritten every S seconds (point
+Google Earth's network link or QGIS at them)::
+
+    atr-node export --from tcp://127.0.0.1:5560 -o live.kml --refresh 10
+
+The format comes from each file's suffix (.geojson/.json, .kml, .csv) or --format. Withdrawn
+contacts are left out unless --include-withdrawn (then flagged by their 'state' property).
+
+Exit status: 0 when written, 1 on bad input (the file and line are named) or an unwritable file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+
+from ..errors import AtrError
+from ._follow import add_curve_arguments, curve_from_args
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument("--contacts", metavar="FILE", help="JSON lines of final contacts (replay --contacts-out)")
+    src.add_argument("--from", dest="endpoint", metavar="ENDPOINT",
+                     help="a live node's PUB endpoint, e.g. tcp://127.0.0.1:5560")
+    parser.add_argument("-o", "--out", metavar="FILE", action="append", required=True,
+                        help="output file (repeatable); format from the suffix: .geojson .json .kml .csv")
+    parser.add_argument("--format", choices=("geojson", "kml", "csv"), help="format of every -o (default: suffix)")
+    parser.add_argument("--include-withdrawn", action="store_true", help="also export withdrawn contacts")
+    parser.add_argument("--duration", type=float, metavar="S", help="live: follow for S seconds at most")
+    parser.add_argument("--until-silent", type=float, default=5.0, metavar="S",
+                        help="live: stop when the node sent nothing for S seconds (default 5; 0 = never)")
+    parser.add_argument("--refresh", type=float, metavar="S", help="live: rewrite the files every S seconds too")
+    add_curve_arguments(parser)
+
+
+def _write(args: argparse.Namespace, book) -> int:
+    from ..operators.export import write_export
+
+    contacts = book.contacts(include_withdrawn=args.include_withdrawn)
+    for path in args.out:
+        write_export(path, contacts, fmt=args.format)
+    return len(contacts)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..operators.book import read_contacts
+    from ..operators.export import format_of
+    from ..operators.stream import NodeFollower
+
+    for path in args.out:  # a bad suffix fails before any waiting
+        format_of(path, args.format)
+    if args.contacts:
+        book = read_contacts(args.contacts)
+        n = _write(args, book)
+        print(f"atr-node export: {n} contacts from {args.contacts} -> {', '.join(args.out)}", file=sys.stderr)
+        return 0
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    with NodeFollower(args.endpoint, curve=curve_from_args(args)) as follower:
+        last = [time.monotonic()]
+        announce = follower.announcer("atr-node export")
+
+        def tick() -> None:
+            announce()
+            if args.refresh and time.monotonic() - last[0] >= args.refresh:
+                last[0] = time.monotonic()
+                try:
+                    _write(args, follower.book)
+                except AtrError as exc:  # keep following: the next refresh or the final write retries
+                    log.warning("refresh failed: %s", exc)
+
+        try:
+            why = follower.follow(duration_s=args.duration, until_silent_s=args.until_silent or None, stop=stop,
+                                  tick=tick)
+        except KeyboardInterrupt:
+            why = "interrupt"
+        n = _write(args, follower.book)
+        st = follower.stats
+        print(f"atr-node export: {n} contacts ({follower.book.n_withdrawn} withdrawn) from {args.endpoint} after "
+              f"{st.heartbeats} heartbeats, {st.contacts} contact messages, {st.bad} bad; stopped: {why} "
+              f"-> {', '.join(args.out)}", file=sys.stderr)
+        if st.heartbeats == 0 and st.contacts == 0:
+            raise AtrError(f"nothing received from {args.endpoint}: is a node publishing there? (files written empty)")
+    return 0
