@@ -1,0 +1,177 @@
+"""The summed-area engine: padded tables built once per tile, box sums read by whole-array slices.
+
+Every detector statistic is a sum over axis-aligned rectangles (SPEC section 1). For an image
+``B`` its summed-area table ``T[y, x] = sum(B[:y, :x])`` (``cv2.integral``, shape
+``(rows + 1, cols + 1)``) gives any box sum from four corners::
+
+    sum(B[y0:y1, x0:x1]) = T[y1, x1] - T[y0, x1] - T[y1, x0] + T[y0, x0]
+
+Images are laid into a buffer padded on every side by the windows' reach, with the pad
+holding "no data" (0 in the value and mask images), so every window of every pixel of the tile
+is a rectangle inside the buffer: no clipping, no special case at the edges, and a window that
+runs off the tile simply counts the missing part as no data. Reads are done for a block of
+anchor rows at a time: a *row strip* ``D = T[i + off1] - T[i + off0]`` (a slice difference)
+then a column difference ``D[:, c1] - D[:, c0]`` with per-column offsets (a slice where the
+offset is constant, a gather where it depends on range). Blocks are sized to stay in cache.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .windows import WindowGeometry
+
+ColumnIndex = slice | np.ndarray
+"""Columns of a table to read: a slice where offsets are constant, an int array otherwise."""
+
+
+@dataclass(frozen=True)
+class Padding:
+    """Pixels of no data around the tile in the buffers, so every window fits inside."""
+
+    top: int
+    bottom: int
+    left: int
+    right: int
+
+    @classmethod
+    def for_geometry(cls, geometry: WindowGeometry) -> "Padding":
+        up, down, left, right = geometry.reach()
+        return cls(top=up, bottom=down, left=left, right=right)
+
+
+class Workspace:
+    """Buffers kept between calls, so tiles of the same shape reuse memory.
+
+    Fresh memory costs a page fault per page on first touch, which on a virtual machine can
+    cost more than the summed-area tables themselves; a node scoring tile after tile keeps one
+    workspace per worker thread and passes it to :func:`~.engine.score_maps`. Not thread-safe.
+    """
+
+    def __init__(self) -> None:
+        self._arrays: dict[str, np.ndarray] = {}
+
+    def array(self, name: str, shape: tuple[int, ...], dtype: np.dtype | type) -> np.ndarray:
+        """An uninitialised array ``name`` of this shape and dtype, reused when it matches."""
+        a = self._arrays.get(name)
+        if a is None or a.shape != shape or a.dtype != np.dtype(dtype):
+            a = self._arrays[name] = np.empty(shape, dtype)
+        return a
+
+    def clear(self) -> None:
+        """Release every buffer."""
+        self._arrays.clear()
+
+
+class SummedAreaTables:
+    """Summed-area tables of several images of one tile, on a common padded grid.
+
+    Parameters
+    ----------
+    shape : (rows, cols)
+        The tile's shape.
+    padding : Padding
+        No-data border around the tile in every buffer.
+    workspace : Workspace, optional
+        Where buffers and tables live; default: fresh memory.
+    """
+
+    def __init__(self, shape: tuple[int, int], padding: Padding, workspace: Workspace | None = None) -> None:
+        self.rows, self.cols = shape
+        self.pad = padding
+        self.ws = workspace if workspace is not None else Workspace()
+        self.tables: dict[str, np.ndarray] = {}
+
+    def buffer(self, name: str, dtype: np.dtype | type, fill: float = 0) -> tuple[np.ndarray, np.ndarray]:
+        """A padded image buffer whose pad holds ``fill``, and a view of its tile interior.
+
+        The interior is left uninitialised: the caller writes every pixel of it.
+
+        Returns
+        -------
+        full : ndarray, shape (top + rows + bottom, left + cols + right)
+        interior : ndarray, shape (rows, cols), a view into ``full``
+        """
+        p = self.pad
+        full = self.ws.array("image " + name, (p.top + self.rows + p.bottom, p.left + self.cols + p.right), dtype)
+        full[:p.top] = fill
+        full[p.top + self.rows:] = fill
+        full[p.top:p.top + self.rows, :p.left] = fill
+        full[p.top:p.top + self.rows, p.left + self.cols:] = fill
+        return full, full[p.top:p.top + self.rows, p.left:p.left + self.cols]
+
+    def _table(self, name: str, buffer: np.ndarray, sdepth: int) -> np.ndarray:
+        dtype = {cv2.CV_32S: np.int32, cv2.CV_32F: np.float32, cv2.CV_64F: np.float64}[sdepth]
+        return self.ws.array("table " + name, (buffer.shape[0] + 1, buffer.shape[1] + 1), dtype)
+
+    def add(self, name: str, buffer: np.ndarray, sdepth: int) -> None:
+        """Integrate a padded buffer into table ``name`` (``sdepth``: cv2.CV_32S/32F/64F)."""
+        self.tables[name] = cv2.integral(buffer, self._table(name, buffer, sdepth), sdepth=sdepth)
+
+    def add_with_squares(self, name: str, name_sq: str, buffer: np.ndarray, sdepth: int,
+                         sqdepth: int | None = None) -> None:
+        """Tables of a buffer and of its square in one pass (``cv2.integral2``)."""
+        sqdepth = sdepth if sqdepth is None else sqdepth
+        self.tables[name], self.tables[name_sq] = cv2.integral2(
+            buffer, self._table(name, buffer, sdepth), self._table(name_sq, buffer, sqdepth),
+            sdepth=sdepth, sqdepth=sqdepth)
+
+    def strip(self, name: str, first_row: int, count: int, step: int, off0: int, off1: int) -> np.ndarray:
+        """Row strips of table ``name`` for ``count`` anchor rows from ``first_row`` by ``step``.
+
+        Returns ``D`` with ``D[k, x] = sum(B[i + off0 : i + off1, :x])`` for anchor row
+        ``i = first_row + k * step`` (tile coordinates); shape (count, padded cols + 1).
+        """
+        t = self.tables[name]
+        a = first_row + self.pad.top
+        stop = (count - 1) * step + 1
+        lo = t[a + off0:a + off0 + stop:step]
+        hi = t[a + off1:a + off1 + stop:step]
+        return hi - lo
+
+    def columns(self, offsets: np.ndarray | int, anchors: slice | np.ndarray) -> ColumnIndex:
+        """Padded table column of ``anchor + offset`` for each anchor column.
+
+        ``offsets`` is an int or a per-tile-column array; ``anchors`` a slice (start, stop,
+        step) of tile columns. A constant offset gives a slice (a view), a varying one an index
+        array (a gather).
+        """
+        x0 = self.pad.left
+        if isinstance(offsets, (int, np.integer)):
+            if isinstance(anchors, slice):
+                start, stop, step = anchors.indices(self.cols)
+                return slice(start + x0 + int(offsets), stop + x0 + int(offsets), step)
+            return np.asarray(anchors) + (x0 + int(offsets))
+        js = np.arange(self.cols)[anchors]
+        return (js + x0 + np.asarray(offsets)[js]).astype(np.intp)
+
+
+def box(strip: np.ndarray, col0: ColumnIndex, col1: ColumnIndex) -> np.ndarray:
+    """Column difference of a row strip: the box sums ``D[:, col1] - D[:, col0]``.
+
+    Parameters
+    ----------
+    strip : ndarray, shape (count, padded cols + 1)
+        From :meth:`SummedAreaTables.strip`.
+    col0, col1 : slice or ndarray
+        From :meth:`SummedAreaTables.columns`; both select the same number of columns.
+
+    Returns
+    -------
+    ndarray, shape (count, n selected columns)
+    """
+    hi = strip[:, col1] if isinstance(col1, slice) else _gather(strip, col1)
+    lo = strip[:, col0] if isinstance(col0, slice) else _gather(strip, col0)
+    return hi - lo
+
+
+def _gather(strip: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``strip[:, cols]``; integer tables go through a float view of the same item size, which
+    numpy's ``take`` moves about twice as fast as int32 items."""
+    if strip.dtype.kind in "iu":
+        as_float = np.dtype(f"f{strip.dtype.itemsize}")
+        return np.take(strip.view(as_float), cols, axis=1).view(strip.dtype)
+    return np.take(strip, cols, axis=1)
