@@ -172,7 +172,7 @@ class SimulationSettings:
     mission_shapes: tuple[str, ...] = ("cylinder", "cone", "wedge")
     """Built-in shapes, or mesh files (.stl/.obj, relative to the config file)."""
     mission_tile_pings: int = 256
-    mission_clutter_per_km2: float = 2000.0
+    mission_clutter_per_km2: float = 500.0
     """Rocks and other clutter, fixed in the world (seen at the same place on every leg)."""
     mission_ripples: bool = False
     """Add sand-ripple fields (the "hard" variant turns them on, with dense clutter)."""
@@ -317,6 +317,12 @@ class NodeSettings:
     """Tiles whose pings are farther than this from any INS fix are held, not georeferenced."""
     tile_margin_m: float = 0.0
     """Extra margin around tiles beyond half the largest window (0 = just that)."""
+    node_id: str = ""
+    """This node's id in evidence exchange (unique among exchanging nodes); "" = the host name."""
+    exchange_publish: str = ""
+    """ZeroMQ endpoint to bind and publish this node's evidence deltas on; "" = do not publish."""
+    exchange_peers: tuple[str, ...] = ()
+    """Other nodes' exchange endpoints to subscribe to and ingest evidence deltas from."""
 
     def __post_init__(self) -> None:
         _check(self.queue_tiles >= 1, "node.queue_tiles", "must be >= 1")

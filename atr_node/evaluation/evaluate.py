@@ -25,7 +25,7 @@ from ..calibration.model import PerformanceModel
 from ..config import Settings
 from ..geo import tile_geometry
 from ..io.atrlog import read_atrlog
-from .methods import Comparison, EvaluationRun, fuse, run_pipeline
+from .methods import SWEEP_FACTORS, Comparison, EvaluationRun, fuse, run_pipeline
 from .report import Mosaic, plot_belief, plot_mosaic, plot_roc
 from .scoring import RocCurve, read_truth
 
@@ -63,7 +63,19 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     out.mkdir(parents=True, exist_ok=True)
     truth = read_truth(truth_path)
     mosaic = Mosaic() if figures else None
-    run = _run(settings, log_path, model=model, online=online, mosaic=mosaic, progress=progress)
+    node_contacts, online_stats = None, {}
+    if online is not None:
+        # pass 1: the node as aboard, calibrating on-line from the mission's first tiles; the
+        # comparisons then run on one pass with the model it ended with, so that every method
+        # sees the same detections at the same thresholds
+        first = _run(settings, log_path, model=model, online=online, mosaic=None, progress=progress, sweep=False)
+        node_contacts, model = first.node_contacts, first.model
+        online_stats = {"online_switched_at": first.stats.get("online_switched_at"),
+                        "node_pass_detect_s": first.stats.get("detect_s")}
+    run = _run(settings, log_path, model=model, online=None, mosaic=mosaic, progress=progress, sweep=True)
+    if node_contacts is not None:
+        run.node_contacts = node_contacts
+        run.stats.update(online_stats)
     tl = np.array([(t.lat_deg, t.lon_deg) for t in truth]).reshape(-1, 2)
     cmp = Comparison(run, tl)
     km2 = max(run.covered_km2, 1e-12)
@@ -119,12 +131,12 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     return result
 
 
-def _run(settings, log_path, *, model, online, mosaic, progress) -> EvaluationRun:
+def _run(settings, log_path, *, model, online, mosaic, progress, sweep: bool) -> EvaluationRun:
     from ..node.service import open_recording
 
-    run = run_pipeline(settings, open_recording(log_path), model=model, online=online, progress=progress,
-                       keep_pixels=mosaic.add if mosaic is not None else None)
-    return run
+    return run_pipeline(settings, open_recording(log_path), model=model, online=online, progress=progress,
+                        keep_pixels=mosaic.add if mosaic is not None else None,
+                        sweep_factors=SWEEP_FACTORS if sweep else ())
 
 
 def check_claims(singles: dict[str, RocCurve], run: EvaluationRun, *, and3: RocCurve, and4: RocCurve, or4: RocCurve,

@@ -37,7 +37,7 @@ from ..node.pipeline import Pipeline
 from ..node.strip import StripUnit
 from .scoring import OperatingPoint, RocCurve, match, operating_point, roc
 
-SWEEP_FACTORS = (0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.15, 1.3, 1.5, 1.75, 2.0, 2.5, 3.0)
+SWEEP_FACTORS = (0.7, 0.85, 1.0, 1.25, 1.6, 2.0, 3.0, 5.0, 10.0)
 """Thresholds of each detector's ROC, as factors of its model threshold."""
 EVAL_BEL_FLOOR = 0.02
 """Fusion ROCs consider belief regions down to this Bel(T)."""
@@ -96,7 +96,7 @@ def run_pipeline(settings: Settings, records: Iterable[LogRecord], *, model: Per
                 taus = {d: float(pipe.model.tau.get(d, getattr(settings.detectors.threshold, d)))
                         for d in pipe.enabled}
                 sweeps = {d: tuple(sorted(set(round(f * taus[d], 9) for f in sweep_factors))) for d in pipe.enabled}
-                pipe.sweep = sweeps
+                pipe.sweep = sweeps if sweep_factors else None
             pipe.feed(rec)
             n += 1
             if progress is not None and rec.link == "sonar":
@@ -137,14 +137,39 @@ class Comparison:
 
     # -- methods --------------------------------------------------------------------------
     def single(self, detector: str) -> RocCurve:
+        """ROC of one detector alone, piecewise from its threshold ladder.
+
+        At each ladder threshold tau_k the detections (extracted at tau_k, size filter
+        included) grouped across legs within the gate are the contacts; between tau_k and the
+        next rung, the groups of rung k are kept while their largest gamma reaches the swept
+        threshold. At the rungs this is exact; between them it stands for extraction at the
+        swept threshold.
+        """
+        ladder = sorted(self.run.sweep[detector])
+        n_t = len(self.truth_en)
         pts = [OperatingPoint(math.inf, 0.0, 0, 0, 0)]
-        for tau in sorted(self.run.sweep[detector], reverse=True):
+        for k, tau in enumerate(ladder):
+            upper = ladder[k + 1] if k + 1 < len(ladder) else math.inf
             recs = _records(self.run, detector, tau)
-            cs = or_contacts(recs, gate_m=self.gate_m)
-            en = np.array([(c.east_m, c.north_m) for c in cs]).reshape(-1, 2)
-            m = match(en, self.truth_en)
-            pts.append(OperatingPoint(tau, len(m) / max(len(self.truth_en), 1), len(cs) - len(m), len(cs), len(m)))
-        return RocCurve(detector.upper(), tuple(pts), len(self.truth_en))
+            n, labels = group_detections(recs, gate_m=self.gate_m)
+            if n == 0:
+                pts.append(OperatingPoint(tau, 0.0, 0, 0, 0))
+                continue
+            gam = np.array([r.gamma for r in recs])
+            en = np.array([(r.east_m, r.north_m) for r in recs])
+            score = np.full(n, -np.inf)
+            np.maximum.at(score, labels, gam)
+            order = np.lexsort((gam, labels))
+            last = np.flatnonzero(np.r_[labels[order][1:] != labels[order][:-1], True])
+            pos = np.zeros((n, 2))
+            pos[labels[order][last]] = en[order][last]  # a group sits at its strongest detection
+            levels = [tau] + sorted({float(x) for x in score if tau < x < upper})
+            for thr in levels:
+                keep = score >= thr
+                m = match(pos[keep], self.truth_en)
+                c = int(keep.sum())
+                pts.append(OperatingPoint(float(thr), len(m) / max(n_t, 1), c - len(m), c, len(m)))
+        return RocCurve(detector.upper(), tuple(pts), n_t)
 
     def logical(self, kind: str, detectors: Sequence[str]) -> RocCurve:
         recs = [r for d in detectors for r in _records(self.run, d, None)]

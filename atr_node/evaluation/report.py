@@ -121,12 +121,21 @@ def belief_raster(grid: EvidenceGrid) -> tuple[np.ndarray, tuple[float, float, f
     for (cy, cx), a in zip(keys, acc):
         m = closed_form(a[0], a[1])
         bel = m.m_t.reshape(n, n).copy()
-        cover = grid.covered_mask(cy, cx) if hasattr(grid, "covered_mask") else None
-        if cover is not None:
-            bel[~cover.reshape(n, n)] = np.nan
+        bel[~_covered(grid, (cy, cx)).reshape(n, n)] = np.nan
         img[(cy - y0) * n:(cy - y0 + 1) * n, (cx - x0) * n:(cx - x0 + 1) * n] = bel
     c = grid.cell_m
     return img, (x0 * n * c, (x0 * n + nx) * c, y0 * n * c, (y0 * n + ny) * c)
+
+
+def _covered(grid: EvidenceGrid, key: tuple[int, int]) -> np.ndarray:
+    """Cells of a chunk that some leg covered (from the grid's per-leg coverage bitmaps)."""
+    legs = grid.cover.get(key, {})
+    out = np.zeros(grid.nn, dtype=bool)
+    for bits in legs.values():
+        if bits is None:  # the leg covered the whole chunk
+            return np.ones(grid.nn, dtype=bool)
+        out |= np.unpackbits(bits, count=grid.nn).astype(bool)
+    return out
 
 
 def plot_belief(grid: EvidenceGrid, path: str | os.PathLike[str], *, truth_en: np.ndarray, title: str) -> Path:

@@ -2,8 +2,10 @@
 
 A contact is an 8-connected region of cells whose Bel(T) is at least ``withdraw_bel``
 holding a cell at ``report_bel`` or more (hysteresis: a contact is born at ``report_bel``
-and lives until its region falls below ``withdraw_bel``). Its position is the
-belief-weighted centroid of the region's cell centres; ``bel``, ``pl`` and ``m_theta`` are
+and lives until its region falls below ``withdraw_bel``). A region is a union of association
+gates around detections, so objects a few metres apart can share one: a region whose
+detections form several groups (single linkage within the gate) is split, each cell going to
+the nearest group. A contact's position is the belief-weighted centroid of its cell centres; ``bel``, ``pl`` and ``m_theta`` are
 those of the region's peak cell; ``sigma_m`` is the belief-weighted spread of the region
 (per-axis RMS, plus a cell's quantisation ``cell_m / sqrt(12)``), which the association gate
 (navigation uncertainty plus template size) dominates.
@@ -23,6 +25,7 @@ from typing import Any
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from ..config import FusionSettings
 from ..geo import MissionFrame
@@ -138,13 +141,18 @@ class ContactTracker:
     def update(self, grid: EvidenceGrid, t: float) -> list[Contact]:
         """Re-extract contacts after new evidence; return the messages to publish."""
         self._refresh(grid)
-        parts = list(self._cells.values())
+        # in chunk order, not cache insertion order: a tracker restored from a snapshot rebuilds
+        # its cache in another order, and the sums below must not change in their last bits (nor
+        # the label order that numbers new contacts); found by tools/kill_restart.py
+        parts = [self._cells[k] for k in sorted(self._cells)]
         if parts:
             iy, ix, bel, mn, mth = (np.concatenate([p[i] for p in parts]) for i in range(5))
         else:
             iy = ix = np.zeros(0, dtype=np.int64)
             bel = mn = mth = np.zeros(0)
-        n_comp, lab = label_cells(iy, ix)
+        n_reg, reg = label_cells(iy, ix)
+        det_reg = self._detection_labels(grid, iy, ix, reg)
+        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg)
         e, nn_ = grid.cell_centre(iy, ix)
         w = np.bincount(lab, weights=bel, minlength=n_comp)
         ce = np.bincount(lab, weights=bel * e, minlength=n_comp) / np.maximum(w, 1e-300)
@@ -169,7 +177,6 @@ class ContactTracker:
             if cid not in used and j not in comp_id:
                 comp_id[j] = cid
                 used.add(cid)
-        det_lab = self._detection_labels(grid, iy, ix, lab)
         out: list[Contact] = []
         for j in range(n_comp):
             p = peak[j]
@@ -199,6 +206,49 @@ class ContactTracker:
         for c in out:
             self.history[c.id] = c
         return out
+
+    def _split(self, grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, reg: np.ndarray, n_reg: int,
+               det_reg: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
+        """Split belief regions that hold several distinct objects.
+
+        A region is a union of association gates around detections, so two objects a few
+        metres apart share one. Its detections are grouped by single linkage within the gate;
+        each cell goes to the nearest group (by its confidence-weighted mean position), and
+        each group is a contact. Returns (cell labels, number of contacts, detection labels).
+        """
+        lab = reg.copy()
+        det_lab = det_reg.copy()
+        n_comp = n_reg
+        if not n_reg or not (det_reg >= 0).any():
+            return lab, n_comp, det_lab
+        dets = grid.detections
+        de = np.array([r.east_m for r in dets])
+        dn = np.array([r.north_m for r in dets])
+        conf = np.array([max(r.confidence, 1e-12) for r in dets])
+        e, n = grid.cell_centre(iy, ix)
+        for j in np.unique(det_reg[det_reg >= 0]):
+            members = np.flatnonzero(det_reg == j)
+            if members.size < 2:
+                continue
+            xy = np.column_stack([de[members], dn[members]])
+            pairs = cKDTree(xy).query_pairs(r=self.gate_m, output_type="ndarray")
+            k = members.size
+            s_ = np.concatenate([np.arange(k), pairs[:, 0]]) if pairs.size else np.arange(k)
+            d_ = np.concatenate([np.arange(k), pairs[:, 1]]) if pairs.size else np.arange(k)
+            ng, g = connected_components(coo_matrix((np.ones(s_.size, dtype=np.int8), (s_, d_)), shape=(k, k)),
+                                         directed=False)
+            if ng < 2:
+                continue
+            wsum = np.bincount(g, weights=conf[members], minlength=ng)
+            ge = np.bincount(g, weights=conf[members] * de[members], minlength=ng) / wsum
+            gn = np.bincount(g, weights=conf[members] * dn[members], minlength=ng) / wsum
+            cells = np.flatnonzero(reg == j)
+            nearest = np.argmin((e[cells, None] - ge[None, :]) ** 2 + (n[cells, None] - gn[None, :]) ** 2, axis=1)
+            new_labels = np.r_[j, n_comp + np.arange(ng - 1)]  # group 0 keeps the region's label
+            lab[cells] = new_labels[nearest]
+            det_lab[members] = new_labels[g]
+            n_comp += ng - 1
+        return lab, n_comp, det_lab
 
     @staticmethod
     def _detection_labels(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, lab: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..config import DetectorSettings, TemplateSettings
 from ..detectors import Detection, find_detections, score_strip
+from ..detectors.sat import Workspace
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,7 +65,8 @@ def detect(job: DetectJob) -> DetectResult:
     t0 = time.perf_counter()
     scores = score_strip(job.pixels, core_rows=job.core, range0_m=job.range0_m, dr_m=job.dr_m, dx_m=job.dx_m,
                          altitude_m=job.altitude_m, template=job.template, detectors=job.detectors,
-                         enabled=job.enabled, background=job.background, median=job.median)
+                         enabled=job.enabled, background=job.background, median=job.median,
+                         workspace=_WORKSPACE)
     covered, dets = {}, {}
     shape = (job.core[1] - job.core[0], job.pixels.shape[1])
     sweep: dict[str, dict[float, list[Detection]]] | None = {} if job.sweep else None
@@ -82,6 +84,29 @@ def detect(job: DetectJob) -> DetectResult:
     return DetectResult(job.key, shape, covered, dets, time.perf_counter() - t0, sweep)
 
 
+_WORKSPACE = Workspace()
+"""Buffers reused from unit to unit in this process (units of one leg have the same shape)."""
+
+
 def worker_init(threads: int = 1) -> None:
-    """Worker process start: one OpenCV thread (the main process has the other core)."""
+    """Worker process start: one OpenCV thread (the main process has the other core), and a
+    watch on the parent: when the node is SIGKILLed the worker would otherwise live on as an
+    orphan holding its memory (found by tools/kill_restart.py), so it exits when its parent
+    changes."""
     cv2.setNumThreads(threads)
+    import multiprocessing
+    import os
+    import threading
+
+    # the pid the node had when it started this worker (not getppid(): the node may already be
+    # dead while this worker was still importing, and then getppid() is already init's)
+    spawner = multiprocessing.parent_process()
+    parent = spawner.pid if spawner is not None and spawner.pid else os.getppid()
+
+    def watch() -> None:
+        while True:
+            threading.Event().wait(0.5)
+            if os.getppid() != parent:
+                os._exit(0)
+
+    threading.Thread(target=watch, name="atr-parent-watch", daemon=True).start()
