@@ -57,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hits", help="hits file (default <xtf>.hits when it exists)")
     ap.add_argument("--survey", action="append", default=[], help="CSV of surveyed points (repeatable)")
     ap.add_argument("--contacts", help="JSON lines of contacts (lat_deg, lon_deg) to mark on the map")
+    ap.add_argument("--detections", help="JSON lines of detections (atr-node replay --detections-out) to mark")
     ap.add_argument("--altitude", choices=("altimeter", "sonar"), default="altimeter",
                     help="altitude for slant-to-ground: the recorded altimeter (default) or the sonar's first return")
     ap.add_argument("--quick", action="store_true", help="smaller, coarser figure (fast check)")
@@ -164,6 +165,14 @@ def main(argv: list[str] | None = None) -> int:
     for (name, pts), mk in zip(surveys.items(), ("c^", "ms", "yD", "g*")):
         e, n = frame.to_frame([p[1] for p in pts], [p[2] for p in pts])
         ax1.plot(e, n, mk, ms=7, label=f"surveyed: {name}")
+    if args.detections:
+        with open(args.detections, encoding="utf-8") as fh:
+            dets = [json.loads(line) for line in fh if line.strip()]
+        for det_name, colour in (("mf", "tab:blue"), ("lac", "tab:orange"), ("smf", "tab:green"), ("z", "tab:red")):
+            sel = [d for d in dets if d["detector"] == det_name]
+            if sel:
+                e, n = frame.to_frame([d["lat_deg"] for d in sel], [d["lon_deg"] for d in sel])
+                ax1.plot(e, n, "x", color=colour, ms=7, mew=1.5, label=f"detections {det_name}")
     if contacts:
         e, n = frame.to_frame([c["lat_deg"] for c in contacts], [c["lon_deg"] for c in contacts])
         ax1.plot(e, n, "+", color="cyan", ms=16, mew=2, label="contacts")

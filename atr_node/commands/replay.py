@@ -38,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--publish", metavar="ENDPOINT",
                         help="ZeroMQ PUB endpoint (default: links.publish_endpoint; 'none' = do not publish)")
     parser.add_argument("--contacts-out", metavar="FILE", help="write the final contacts as JSON lines")
+    parser.add_argument("--detections-out", metavar="FILE",
+                        help="write every detection fused (detector, leg, position, gamma, confidence) as JSON lines")
     parser.add_argument("--state-dir", metavar="DIR", help="snapshot here and resume from here after a crash")
     parser.add_argument("--workers", type=int, default=1, choices=(0, 1),
                         help="1: detection in a worker process (both cores); 0: one process")
@@ -73,7 +75,7 @@ def build_model(settings, model_path: str | None, online: str, *, deterministic:
 def run(args: argparse.Namespace) -> int:
     from hw.replay import IterLink, Paced
 
-    from ..node.service import NodeService, open_recording, write_contacts
+    from ..node.service import NodeService, open_recording, write_contacts, write_detections
 
     settings = load_settings(args.config)
     speed = _speed(args.speed)
@@ -96,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
         contacts = service.pipeline.contacts
         if args.contacts_out:
             write_contacts(args.contacts_out, contacts)
+        if args.detections_out:
+            write_detections(args.detections_out, service.pipeline)
         summary = service.summary()
         summary["wall_s"] = round(wall, 3)
         summary["mpx_per_s"] = round(summary["pixels"] / 1e6 / max(wall, 1e-9), 2)

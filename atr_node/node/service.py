@@ -54,9 +54,20 @@ class NodeService:
                  online: Any = None, publish: str | None = None, state_dir: str | Path | None = None,
                  on_contact: Callable[[dict], None] | None = None, source_name: str = "") -> None:
         self.settings = settings
-        self.publisher = Publisher(publish) if publish else None
+        from ..security import curve_from_settings
+
+        self.curve = curve_from_settings(settings)
+        self.publisher = Publisher(publish, curve=self.curve) if publish else None
         self.on_contact = on_contact
         self.pipeline = Pipeline(settings, model=model, emit=self._emit, workers=workers, mode=mode, online=online)
+        self.exchange = None
+        if settings.node.exchange_publish or settings.node.exchange_peers:  # evidence exchange (issue 11)
+            import socket
+
+            from .exchange import NodeExchange
+
+            self.exchange = NodeExchange(self.pipeline, node=settings.node.node_id or socket.gethostname(),
+                                         publish=settings.node.exchange_publish, peers=settings.node.exchange_peers)
         self.state_dir = Path(state_dir) if state_dir else None
         self.source_name = source_name
         self.notifier = Notifier()
@@ -68,6 +79,7 @@ class NodeService:
         self._hb_thread: threading.Thread | None = None
         self._last_snap_tiles = 0
         self.snapshots = 0
+        self.snapshot_failures = 0
 
     # -- lifecycle ---------------------------------------------------------------------------
     def resume(self) -> int:
@@ -82,6 +94,10 @@ class NodeService:
                         self.source_name)
             return 0
         self.position = self.resumed_from = int(meta["position"])
+        if self.exchange is not None and not self.exchange.restore(node_state.read_current(self.state_dir)):
+            log.warning("evidence exchange off after this resume: the snapshot holds no usable delta ledger")
+            self.exchange.close()
+            self.exchange = None
         self._last_snap_tiles = self.pipeline.stats.tiles_in
         log.warning("resumed from snapshot at input record %d (%d tiles in)", self.position,
                     self.pipeline.stats.tiles_in)
@@ -114,6 +130,8 @@ class NodeService:
             for i, rec in enumerate(records, start=start):
                 self.pipeline.feed(rec)
                 self.position = i + 1
+                if self.exchange is not None:
+                    self.exchange.pump()
                 self.notifier.watchdog()
                 if self.state_dir is not None and self.pipeline.stats.tiles_in - self._last_snap_tiles >= every:
                     self.snapshot()
@@ -149,6 +167,8 @@ class NodeService:
                     self.position += 1
                 else:
                     self.pipeline.tick(time.time())
+                if self.exchange is not None:
+                    self.exchange.pump()
                 self.notifier.watchdog()
                 if self.state_dir is not None and self.pipeline.stats.tiles_in - self._last_snap_tiles >= every:
                     self.snapshot()
@@ -161,13 +181,29 @@ class NodeService:
 
     def snapshot(self) -> None:
         self.pipeline.drain()
-        node_state.save(self.state_dir, self.pipeline, position=self.position, source=self.source_name)
+        try:
+            node_state.save(self.state_dir, self.pipeline, position=self.position, source=self.source_name)
+        except OSError as exc:
+            # disk full or I/O error: the previous snapshot stays current (state.save guarantees
+            # it); the node goes on and tries again after the next snapshot_every_tiles tiles
+            self.snapshot_failures += 1
+            self._last_snap_tiles = self.pipeline.stats.tiles_in
+            log.error("snapshot to %s failed (%s); the previous one stays current", self.state_dir, exc)
+            return
+        if self.exchange is not None:  # beside the snapshot it belongs to (none: exchange off on resume)
+            try:
+                self.exchange.save(node_state.read_current(self.state_dir))
+            except OSError as exc:
+                log.error("evidence-exchange ledger not saved (%s): a resume from this snapshot turns "
+                          "the exchange off", exc)
         self._last_snap_tiles = self.pipeline.stats.tiles_in
         self.snapshots += 1
 
     def close(self) -> None:
         self._hb_stop.set()
         self.pipeline.close()
+        if self.exchange is not None:
+            self.exchange.close()
         if self.publisher is not None:
             self.publisher.close()
         self.notifier.close()
@@ -215,7 +251,9 @@ class NodeService:
                 "fuse_s": round(st.fuse_s, 3), "latency_p50_ms": round(p50, 1), "latency_p99_ms": round(p99, 1),
                 "contacts": len(self.pipeline.contacts), "nav": self.pipeline.decoder.stats(),
                 "navmerge": vars(self.pipeline.merger.stats), "rejections": dict(st.rejections),
-                "snapshots": self.snapshots, "resumed_from": self.resumed_from}
+                "snapshots": self.snapshots, "snapshot_failures": self.snapshot_failures,
+                "resumed_from": self.resumed_from,
+                "exchange": None if self.exchange is None else {**self.exchange.counters, **self.exchange.grid.counters}}
 
 
 def write_contacts(path: str | Path, contacts: list[dict]) -> None:
@@ -226,6 +264,18 @@ def write_contacts(path: str | Path, contacts: list[dict]) -> None:
         for c in contacts:
             fh.write(json.dumps(c, sort_keys=True) + "\n")
     tmp.replace(p)
+
+
+def write_detections(path: str | Path, pipeline: Pipeline) -> None:
+    """``--detections-out``: every detection the grid received, one JSON object per line."""
+    p = Path(path)
+    frame = pipeline.frame
+    with open(p, "w") as fh:
+        for r in pipeline.grid.detections:
+            lat, lon = frame.to_latlon(r.east_m, r.north_m) if frame is not None else (float("nan"),) * 2
+            fh.write(json.dumps({"detector": r.detector, "leg": r.leg, "t": r.t, "lat_deg": float(lat),
+                                 "lon_deg": float(lon), "east_m": r.east_m, "north_m": r.north_m,
+                                 "gamma": r.gamma, "confidence": r.confidence}) + "\n")
 
 
 def open_recording(path: str | Path) -> Iterator[LogRecord]:
