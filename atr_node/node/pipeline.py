@@ -52,6 +52,9 @@ from .strip import StripAssembler, StripUnit
 
 log = logging.getLogger(__name__)
 
+NAV_KEEP_S = 300.0
+"""INS fixes kept before the ping time of the last tile released (tiles arrive seconds late)."""
+
 
 @dataclass
 class PipelineStats:
@@ -227,12 +230,16 @@ class Pipeline:
 
     # -- stages ---------------------------------------------------------------------------
     _last_t = 0.0
+    mission = ""
 
     def _init_frame(self, lat: float, lon: float) -> None:
         self.frame = MissionFrame.from_settings(self.settings.mission, first_fix=(lat, lon))
         self.tracker = ContactTracker(self.settings.fusion, self.frame, gate_m=self.gate_m)
 
     def _on_tile(self, tile: Tile) -> None:
+        # bound the INS track on long missions (it grew by every fix for the whole mission;
+        # found by tools/soak.py): older fixes could only serve a tile arriving that late
+        self.track.forget_before(float(tile.ping_time[0]) - NAV_KEEP_S)
         if self.frame is None:
             self._init_frame(float(tile.nav.lat_deg[0]), float(tile.nav.lon_deg[0]))
         if self.strips is None:
@@ -241,6 +248,7 @@ class Pipeline:
             extra = int(math.ceil(self.settings.node.tile_margin_m / tile.dx_m))
             self.strips = StripAssembler(required_margin(geom)[0] + extra, max_gap_s=self.settings.node.nav_max_gap_s)
         self.tiles_merged += 1
+        self.mission = tile.mission  # evidence deltas name their mission (atr_node.node.exchange)
         if self.online is not None:
             self.online.offer(tile)
         if self._strip_leg is not None and tile.leg != self._strip_leg:
@@ -278,6 +286,13 @@ class Pipeline:
             self._bg = {k: v for k, v in self._bg.items() if k[0] == unit.leg}  # a new leg: forget older ones
             self._bg[key] = (BackgroundTracker(f), _MedianTracker(f))
         bg_tracker, med_tracker = self._bg[key]
+        b = bg_tracker.background
+        if b is not None and b.shape[0] != unit.pixels.shape[1]:
+            # the strip of this leg and side restarted on another range axis (a tile of another
+            # mission name or range axis in the same leg; found by fuzzing): start the
+            # background afresh rather than fail
+            bg_tracker.reset()
+            med_tracker.m = None
         core_px = unit.pixels[unit.core]
         background = bg_tracker.update(core_px)
         median = med_tracker.update(core_px)
