@@ -1,0 +1,291 @@
+"""Target and non-target detector responses, collected by injection (SPEC section 5).
+
+- Non-target responses: on the target-free image, the maximum of gamma_d over each
+  non-overlapping template-sized cell (L rows by W + S(j) columns), so that the prior P(T)
+  is per possible target location.
+- Target responses: per injected target, the maximum of gamma_d over its template window
+  around its anchor (rows ``[i - L//2, i - L//2 + L)``, columns ``[j - W, j + S(j))``).
+
+Only what is needed is scored: the clean image once, then, per iteration, a crop around each
+injected target (its windows plus the detectors' margin), normalised with the clean image's
+per-range statistics so a crop scores as the whole image would (see :func:`collect_image`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import logging
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import AtrError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Responses:
+    """Responses of several detectors to the same injected targets and clean cells.
+
+    ``target[d]`` (m,) and ``target_range_m`` (m,), ``target_shape`` (m,) describe the
+    injected targets in injection order; ``nontarget[d]`` (k_d,) the clean cells. NaN = the
+    detector did not cover it.
+    """
+
+    detectors: tuple[str, ...]
+    target: Mapping[str, np.ndarray]
+    nontarget: Mapping[str, np.ndarray]
+    target_range_m: np.ndarray
+    target_shape: tuple[str, ...] = ()
+    provenance: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        m = np.asarray(self.target_range_m).size
+        for d in self.detectors:
+            if np.asarray(self.target[d]).shape != (m,):
+                raise ValueError(f"target responses of {d!r}: expected shape ({m},), got {np.shape(self.target[d])}")
+            if np.asarray(self.nontarget[d]).ndim != 1:
+                raise ValueError(f"non-target responses of {d!r} must be 1-D")
+
+    @property
+    def n_targets(self) -> int:
+        return int(np.asarray(self.target_range_m).size)
+
+    def head(self, n_targets: int) -> "Responses":
+        """The first ``n_targets`` injected targets (all non-target cells): the responses a
+        shorter calibration of the same images would have given."""
+        n = max(0, int(n_targets))
+        return Responses(self.detectors, {d: self.target[d][:n] for d in self.detectors}, dict(self.nontarget),
+                         np.asarray(self.target_range_m)[:n], tuple(self.target_shape[:n]), dict(self.provenance))
+
+    @staticmethod
+    def concat(parts: Sequence["Responses"]) -> "Responses":
+        """Pool the responses of several images (same detectors)."""
+        if not parts:
+            raise ValueError("no responses to concatenate")
+        dets = parts[0].detectors
+        for p in parts:
+            if p.detectors != dets:
+                raise ValueError(f"responses of different detectors: {p.detectors} vs {dets}")
+        prov = dict(parts[0].provenance)
+        prov["n_images"] = sum(int(p.provenance.get("n_images", 1)) for p in parts)
+        return Responses(
+            dets,
+            {d: np.concatenate([np.asarray(p.target[d], dtype=np.float64) for p in parts]) for d in dets},
+            {d: np.concatenate([np.asarray(p.nontarget[d], dtype=np.float64) for p in parts]) for d in dets},
+            np.concatenate([np.asarray(p.target_range_m, dtype=np.float64) for p in parts]),
+            tuple(s for p in parts for s in p.target_shape), prov)
+
+
+# ----------------------------------------------------------------------------------------
+# Windows on a score map
+
+
+def cell_edges(shadow_px: np.ndarray, echo_px: int) -> np.ndarray:
+    """Column edges of non-overlapping template-wide cells: a cell starting at column c is
+    ``echo_px + shadow_px[c]`` wide (the last one may be narrower). (n_cells + 1,) int."""
+    cols = int(np.asarray(shadow_px).size)
+    edges = [0]
+    while edges[-1] < cols:
+        c = edges[-1]
+        edges.append(min(cols, c + int(echo_px) + int(shadow_px[c])))
+    return np.asarray(edges, dtype=np.intp)
+
+
+def cell_maxima(score: np.ndarray, *, length_px: int, echo_px: int, shadow_px: np.ndarray) -> np.ndarray:
+    """Maximum of ``score`` over each non-overlapping template-sized cell (SPEC section 5).
+
+    Parameters
+    ----------
+    score : (rows, cols) float, NaN = not covered
+    length_px, echo_px : int
+        L and W of the template in pixels.
+    shadow_px : (cols,) int
+        S(j) per column.
+
+    Returns
+    -------
+    (n_cells,) float64: cells of ``length_px`` rows (the last rows that do not fill a cell are
+    left out) and :func:`cell_edges` columns; NaN where a cell has no finite score.
+    """
+    s = np.asarray(score, dtype=np.float64)
+    rows, cols = s.shape
+    nr = rows // max(1, int(length_px))
+    if nr == 0 or cols == 0:
+        return np.empty(0)
+    s = s[: nr * length_px]
+    # fmax ignores NaN unless every value is NaN: an all-NaN cell stays NaN (not covered).
+    by_rows = np.fmax.reduce(s.reshape(nr, length_px, cols), axis=1)
+    edges = cell_edges(shadow_px, echo_px)
+    cells = np.fmax.reduceat(by_rows, edges[:-1], axis=1)
+    return cells.ravel()
+
+
+def window_max(score: np.ndarray, row: int, col: int, *, row0: int, length_px: int, echo_px: int,
+               shadow_px: int) -> float:
+    """Maximum finite score over the template window of anchor (row, col), clipped to the map;
+    NaN when the window holds no finite score."""
+    rows, cols = score.shape
+    r0, r1 = max(0, row + row0), min(rows, row + row0 + length_px)
+    c0, c1 = max(0, col - echo_px), min(cols, col + shadow_px)
+    if r0 >= r1 or c0 >= c1:
+        return float("nan")
+    w = score[r0:r1, c0:c1]
+    return float(np.fmax.reduce(w.ravel())) if w.size else float("nan")
+
+
+ProgressFn = Callable[[int, int], None]
+"""progress(done, total) called after each iteration."""
+
+
+@dataclass(frozen=True)
+class CalibrationImage:
+    """A target-free ground-range image to inject into: pixels (rows, cols) float32, NaN = no
+    data, with its axes."""
+
+    pixels: np.ndarray
+    range0_m: float
+    dr_m: float
+    dx_m: float
+    altitude_m: float
+    name: str = "image"
+
+    @property
+    def ranges_m(self) -> np.ndarray:
+        return self.range0_m + self.dr_m * np.arange(self.pixels.shape[1], dtype=np.float64)
+
+    @classmethod
+    def from_tile(cls, tile: Any, *, altitude_m: float) -> "CalibrationImage":
+        """From a :class:`~atr_node.records.tile.Tile` (slant tiles converted to ground range at
+        the tile's nav altitude, or ``altitude_m`` when it has no nav)."""
+        alt = float(np.nanmean(tile.nav.altitude_m)) if tile.nav is not None else float(altitude_m)
+        g = tile.ground_range(None if tile.nav is not None else alt) if tile.slant else tile
+        return cls(np.ascontiguousarray(g.pixels, dtype=np.float32), float(g.range0_m), float(g.dr_m),
+                   float(g.dx_m), alt, name=tile.ident)
+
+
+def _settings_provenance(settings: Any) -> dict[str, Any]:
+    import dataclasses
+
+    return {"sensor": dataclasses.asdict(settings.sensor), "template": dataclasses.asdict(settings.template),
+            "simulation": dataclasses.asdict(settings.simulation)}
+
+
+def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, targets_per_image: int,
+                  rng: np.random.Generator, enabled: Sequence[str] | None = None,
+                  progress: Callable[[], None] | None = None) -> Responses:
+    """Responses of one image: non-target cells of the clean image, then ``iterations`` rounds
+    of ``targets_per_image`` injected targets.
+
+    Lazy scoring: the clean image is scored once. Each injected target is scored on a crop:
+    its template window of anchors grown by the windows' reach, with the clean image's
+    per-range background b(j) and median m(j). Every window of every anchor in that template
+    window then reads exactly the pixels it reads in the whole image, so the response equals
+    ``score_maps(injected, background=b, median=m)`` there (a test checks it), at a small
+    fraction of the cost. Using the clean image's b and m is the node's steady state: its
+    tracked background is not moved by one target.
+
+    Parameters
+    ----------
+    image : CalibrationImage
+    settings : atr_node.config.Settings
+        ``template``, ``detectors`` (enabled, floors), ``sensor`` and ``simulation``.
+    rng : numpy.random.Generator
+        Draws every placement and the speckle of the signatures.
+    progress : callable, optional
+        Called once after each iteration.
+    """
+    from ..detectors.background import column_mean, column_median
+    from ..detectors.engine import score_maps
+    from ..detectors.windows import window_geometry
+    from ..simulation.inject import inject_targets
+    from ..simulation.signature import background_curve
+
+    dets = tuple(settings.detectors.enabled if enabled is None else enabled)
+    px = np.ascontiguousarray(image.pixels, dtype=np.float32)
+    rows, cols = px.shape
+    geo = dict(dr_m=image.dr_m, dx_m=image.dx_m, altitude_m=image.altitude_m)
+    common = dict(template=settings.template, detectors=settings.detectors, enabled=dets)
+    geom = window_geometry(image.ranges_m, template=settings.template, **geo)
+    b, m = column_mean(px), column_median(px)
+    clean = score_maps(px, range0_m=image.range0_m, background=b, median=m, **geo, **common)
+    nontarget = {d: cell_maxima(clean[d], length_px=geom.length_px, echo_px=geom.echo_px,
+                                shadow_px=geom.shadow_px) for d in dets}
+    del clean
+    up, down, left, right = geom.reach()
+    g = background_curve(px)  # the injector's gray-level curve g(r), once for all iterations
+    target: dict[str, list[float]] = {d: [] for d in dets}
+    ranges: list[float] = []
+    shapes: list[str] = []
+    for _ in range(iterations):
+        injected, placed = inject_targets(px, range0_m=image.range0_m, n_targets=targets_per_image, rng=rng,
+                                          sensor=settings.sensor, simulation=settings.simulation,
+                                          template=settings.template, g=g, **geo)
+        for t in placed:
+            i, j = int(t.row), int(t.col)
+            s_j = int(geom.shadow_px[min(max(j, 0), cols - 1)])
+            # Anchors of the template window, then every pixel their windows read.
+            a_r0, a_r1 = i + geom.row0, i + geom.row1
+            a_c0, a_c1 = j - geom.echo_px, j + s_j
+            r0, r1 = max(0, a_r0 - up), min(rows, a_r1 + down)
+            c0, c1 = max(0, a_c0 - left), min(cols, a_c1 + right)
+            crop = injected[r0:r1, c0:c1]
+            sc = score_maps(crop, range0_m=image.range0_m + c0 * image.dr_m, background=b[c0:c1],
+                            median=m[c0:c1], **geo, **common)
+            for d in dets:
+                target[d].append(window_max(sc[d], i - r0, j - c0, row0=geom.row0, length_px=geom.length_px,
+                                            echo_px=geom.echo_px, shadow_px=s_j))
+            ranges.append(float(t.range_m))
+            shapes.append(str(t.shape))
+        if progress is not None:
+            progress()
+    prov = {"n_images": 1, "images": [image.name], "image_shape": [rows, cols], "iterations": iterations,
+            "targets_per_image": targets_per_image}
+    return Responses(dets, {d: np.asarray(v, dtype=np.float64) for d, v in target.items()}, nontarget,
+                     np.asarray(ranges, dtype=np.float64), tuple(shapes), prov)
+
+
+def _room_for_targets(image: CalibrationImage, settings: Any) -> bool:
+    """At least two SMF context windows (SPEC 2.3) along-track and one across: the injector
+    keeps targets that far from the edges."""
+    rows, cols = image.pixels.shape
+    t = settings.template
+    ctx_rows = t.context_factor * t.length_m / image.dx_m
+    ctx_cols = t.context_factor * (t.echo_width_m + t.shadow_max_m) / image.dr_m
+    return rows >= 2 * ctx_rows and cols >= ctx_cols and bool(np.isfinite(image.pixels).any())
+
+
+def collect_responses(images: Sequence[CalibrationImage], *, settings: Any, iterations: int,
+                      targets_per_image: int, seed: int, enabled: Sequence[str] | None = None,
+                      progress: ProgressFn | None = None) -> Responses:
+    """Responses of several images pooled (SPEC section 5); image k draws from the random
+    stream ``(seed, k)``, so the result depends only on the images, settings and seed."""
+    if not images:
+        raise ValueError("collect_responses: no image to calibrate on")
+    usable = [im for im in images if _room_for_targets(im, settings)]
+    skipped = [im.name for im in images if not _room_for_targets(im, settings)]
+    if skipped:
+        log.warning("calibration: %d image(s) too small for one target and its context window, skipped: %s",
+                    len(skipped), ", ".join(skipped))
+    if not usable:
+        raise AtrError(f"calibration: no image has room for a target and its context window "
+                       f"({len(images)} image(s), e.g. {images[0].name} {images[0].pixels.shape})")
+    images = usable
+    total = iterations * len(images)
+    done = [0]
+
+    def tick() -> None:
+        done[0] += 1
+        if progress is not None:
+            progress(done[0], total)
+
+    parts = [collect_image(im, settings=settings, iterations=iterations, targets_per_image=targets_per_image,
+                           rng=np.random.default_rng([seed, k]), enabled=enabled, progress=tick)
+             for k, im in enumerate(images)]
+    out = Responses.concat(parts)
+    prov = dict(out.provenance)
+    prov.update({"images": [n for p in parts for n in p.provenance["images"]], "iterations": iterations,
+                 "targets_per_image": targets_per_image, "seed": seed, "skipped_images": skipped})
+    prov.update(_settings_provenance(settings))
+    return Responses(out.detectors, out.target, out.nontarget, out.target_range_m, out.target_shape, prov)
