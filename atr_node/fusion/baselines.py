@@ -1,8 +1,8 @@
 """Logical AND / OR fusion baselines over the same detections (SPEC section 6, paper section 6).
 
 Detections of every detector and leg (as deposited in the grid,
-``EvidenceGrid.detections``) are grouped by single linkage within the association gate: two
-detections closer than ``gate_m`` belong to the same group. Then
+``EvidenceGrid.detections``) are grouped within the association gate of the strongest
+detection of each group (greedy leader clustering: no chaining across a dense field). Then
 
 - **OR**: every group is a contact (any one detector fired);
 - **AND**: a group is a contact when every detector of the chosen set fired in it at least once.
@@ -17,8 +17,6 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .grid import DetectionRecord
@@ -37,18 +35,38 @@ class LogicalContact:
     max_confidence: float
 
 
-def group_detections(records: Sequence[DetectionRecord], *, gate_m: float) -> tuple[int, np.ndarray]:
-    """Single-linkage groups of detections within ``gate_m``: (n_groups, labels (D,))."""
-    k = len(records)
+def leader_groups(xy: np.ndarray, weight: np.ndarray, *, radius_m: float) -> tuple[int, np.ndarray]:
+    """Greedy leader clustering: the strongest point not yet grouped leads a group and takes
+    every ungrouped point within ``radius_m`` of it; repeat. Unlike single linkage it cannot
+    chain a dense field of detections into one group spanning tens of metres. Ties are broken
+    by input order, so the grouping is deterministic. Returns (n_groups, labels (K,))."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    k = xy.shape[0]
+    labels = np.full(k, -1, dtype=np.int64)
     if k == 0:
+        return 0, labels
+    tree = cKDTree(xy)
+    order = np.lexsort((np.arange(k), -np.asarray(weight, dtype=np.float64)))
+    n = 0
+    for i in order:
+        if labels[i] >= 0:
+            continue
+        near = np.asarray(tree.query_ball_point(xy[i], r=radius_m), dtype=np.int64)
+        near = near[labels[near] < 0]
+        labels[near] = n
+        labels[i] = n
+        n += 1
+    return n, labels
+
+
+def group_detections(records: Sequence[DetectionRecord], *, gate_m: float) -> tuple[int, np.ndarray]:
+    """Groups of detections within ``gate_m`` of their strongest (highest confidence, then
+    gamma) member: (n_groups, labels (D,)). See :func:`leader_groups`."""
+    if not records:
         return 0, np.zeros(0, dtype=np.int64)
     xy = np.array([(r.east_m, r.north_m) for r in records], dtype=np.float64)
-    pairs = cKDTree(xy).query_pairs(r=gate_m, output_type="ndarray")
-    s = np.concatenate([np.arange(k), pairs[:, 0]]) if pairs.size else np.arange(k)
-    d = np.concatenate([np.arange(k), pairs[:, 1]]) if pairs.size else np.arange(k)
-    n, labels = connected_components(coo_matrix((np.ones(s.size, dtype=np.int8), (s, d)), shape=(k, k)),
-                                     directed=False)
-    return int(n), labels.astype(np.int64)
+    conf = np.array([r.confidence for r in records], dtype=np.float64)
+    return leader_groups(xy, conf, radius_m=gate_m)
 
 
 def _contacts(records: Sequence[DetectionRecord], gate_m: float, required: frozenset[str] | None) -> list[LogicalContact]:

@@ -4,7 +4,7 @@ A contact is an 8-connected region of cells whose Bel(T) is at least ``withdraw_
 holding a cell at ``report_bel`` or more (hysteresis: a contact is born at ``report_bel``
 and lives until its region falls below ``withdraw_bel``). A region is a union of association
 gates around detections, so objects a few metres apart can share one: a region whose
-detections form several groups (single linkage within the gate) is split, each cell going to
+detections form several groups (each within the gate of its strongest detection) is split, each cell going to
 the nearest group. A contact's position is the belief-weighted centroid of its cell centres; ``bel``, ``pl`` and ``m_theta`` are
 those of the region's peak cell; ``sigma_m`` is the belief-weighted spread of the region
 (per-axis RMS, plus a cell's quantisation ``cell_m / sqrt(12)``), which the association gate
@@ -25,10 +25,10 @@ from typing import Any
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from ..config import FusionSettings
 from ..geo import MissionFrame
+from .baselines import leader_groups
 from .grid import EvidenceGrid
 from .mass import closed_form
 
@@ -231,12 +231,7 @@ class ContactTracker:
             if members.size < 2:
                 continue
             xy = np.column_stack([de[members], dn[members]])
-            pairs = cKDTree(xy).query_pairs(r=self.gate_m, output_type="ndarray")
-            k = members.size
-            s_ = np.concatenate([np.arange(k), pairs[:, 0]]) if pairs.size else np.arange(k)
-            d_ = np.concatenate([np.arange(k), pairs[:, 1]]) if pairs.size else np.arange(k)
-            ng, g = connected_components(coo_matrix((np.ones(s_.size, dtype=np.int8), (s_, d_)), shape=(k, k)),
-                                         directed=False)
+            ng, g = leader_groups(xy, conf[members], radius_m=self.gate_m)
             if ng < 2:
                 continue
             wsum = np.bincount(g, weights=conf[members], minlength=ng)
