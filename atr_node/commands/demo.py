@@ -34,6 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--online-calibration", choices=("on", "off"), default="on",
                         help="calibrate on-line from each mission's first tiles (default on)")
     parser.add_argument("--model", metavar="FILE", help="starting performance model (default: the shipped one)")
+    parser.add_argument("--small", action="store_true",
+                        help="small missions (3 legs of 70 m, 5 targets): a quick check that everything runs")
 
 
 class _Progress:
@@ -65,6 +67,10 @@ def run(args: argparse.Namespace) -> int:
     from .replay import build_model
 
     base = load_settings(args.config)
+    if args.small:
+        base = base.replace(simulation=dataclasses.replace(
+            base.simulation, mission_legs=3, mission_leg_length_m=70.0, mission_swath_m=30.0, mission_targets=5,
+            mission_tile_pings=128))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.monotonic()

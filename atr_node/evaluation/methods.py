@@ -12,8 +12,8 @@ From that one pass, without scoring again:
   missed-detection evidence (Pd set to 0), with it, and with it plus the weakest detector;
   the ROC sweeps the threshold on Bel(T).
 
-"Best" and "weakest" are ranked by each detector's own ROC: Pd at its model threshold, then
-fewer false alarms.
+"Best" and "weakest" are ranked by each detector's own ROC: at the highest Pd every detector
+reaches, the fewest false alarms.
 """
 
 from __future__ import annotations
@@ -189,12 +189,10 @@ class Comparison:
         return roc(label, en, bel, self.truth_en), contacts
 
     def ranking(self, singles: dict[str, RocCurve]) -> list[str]:
-        """Detectors from best to weakest: Pd at the model threshold, then fewer false alarms."""
-        def key(d: str):
-            tau = min(self.run.sweep[d], key=lambda t: abs(t - self.run.model.tau.get(d, t)))
-            p = singles[d].at_threshold(tau)
-            return (-p.pd, p.false_alarms)
-        return sorted(singles, key=key)
+        """Detectors from best to weakest by their ROC: at the highest Pd that every detector
+        reaches, the fewest false alarms (then the higher best Pd)."""
+        common = min(c.best_pd() for c in singles.values())
+        return sorted(singles, key=lambda d: (singles[d].fa_at_pd(common), -singles[d].best_pd(), d))
 
 
 def _gate(settings: Settings) -> float:
