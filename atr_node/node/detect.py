@@ -110,3 +110,14 @@ def worker_init(threads: int = 1) -> None:
                 os._exit(0)
 
     threading.Thread(target=watch, name="atr-parent-watch", daemon=True).start()
+
+
+def warm_up() -> None:
+    """Run the detectors once on a tiny image, so the first real tile pays no import or
+    first-call cost (called in the worker when the node starts)."""
+    from ..config import Settings
+
+    s = Settings()
+    px = np.ones((64, 64), np.float32)
+    score_strip(px, core_rows=(0, 64), range0_m=10.0, dr_m=s.sensor.dr_m, dx_m=s.sensor.dx_m,
+                altitude_m=s.sensor.altitude_m, template=s.template, detectors=s.detectors)

@@ -132,6 +132,17 @@ class NavMerger:
         # fill invalid nav rows with a harmless value so geometry stays finite; their pixels are NaN
         nav = _fill_invalid(nav, valid, self.default_altitude_m)
         if tile.slant:
+            # the ground axis spans 0 to range0_m + dr_m * cols: refuse one no tile could hold (a
+            # range0_m of 1e300 or a dr_m of 1e-300 asks for an impossible array), or one that
+            # blows a few columns far out into a huge, empty tile (40 columns at 65 km: 650 000
+            # columns, seconds of detection; both found by fuzzing)
+            far_cols = (tile.range0_m + tile.dr_m * (tile.cols - 1)) / tile.dr_m + 1
+            if (not math.isfinite(far_cols) or far_cols * tile.rows > 1 << 28
+                    or far_cols > max(64 * tile.cols, 1 << 16)):
+                key = "slant range axis too long for a ground-range tile"
+                self.stats.reasons[key] = self.stats.reasons.get(key, 0) + 1
+                log.warning("%s: %s (range0_m %r, dr_m %r); dropped", tile.ident, key, tile.range0_m, tile.dr_m)
+                return None
             alt = nav.altitude_m
             # the ground axis of a slant tile: from 0 to the farthest slant range, same spacing
             cols = int(math.floor((tile.range0_m + tile.dr_m * (tile.cols - 1)) / tile.dr_m + 1e-9)) + 1

@@ -46,7 +46,7 @@ from ..geo import MissionFrame, tile_geometry
 from ..io.atrlog import LogRecord
 from ..records.nav import NavFix, NavTrack
 from ..records.tile import Tile
-from .detect import DetectJob, DetectResult, detect, worker_init
+from .detect import DetectJob, DetectResult, detect, warm_up, worker_init
 from .navmerge import NavMerger
 from .strip import StripAssembler, StripUnit
 
@@ -152,6 +152,8 @@ class Pipeline:
         if workers:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
                                              initializer=worker_init)
+            # start the worker and import the detectors there now, not on the first tile
+            self._pool.submit(warm_up)
 
     # -- input ------------------------------------------------------------------------------
     def feed(self, rec: LogRecord) -> None:
@@ -346,11 +348,13 @@ class Pipeline:
         self._update_contacts(t)
         if self.on_fused is not None:
             self.on_fused(unit, model, res)
-        now = time.monotonic()
+        # latency (ICD heartbeat): from a tile's arrival to the evidence of the unit its arrival
+        # released (all its rows but the last margin rows, which wait for the next tile)
+        arrived = self._arrival.pop((unit.side, unit.seq), None)
+        if arrived is not None:
+            self.stats.latency_s.append(time.monotonic() - arrived)
         for seq in unit.completed:
-            arrived = self._arrival.pop((unit.side, seq), None)
-            if arrived is not None:
-                self.stats.latency_s.append(now - arrived)
+            self._arrival.pop((unit.side, seq), None)
             self.stats.tiles_done += 1
         self.stats.fuse_s += time.perf_counter() - t0
 

@@ -8,23 +8,29 @@ and the high-water mark bounds memory when nobody reads.
 from __future__ import annotations
 
 import threading
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import zmq
 
 from . import wire
+
+if TYPE_CHECKING:
+    from ..security import CurveConfig
 
 
 class Publisher:
     """A PUB socket bound (or connected) to ``endpoint``; thread-safe ``send``."""
 
     def __init__(self, endpoint: str, *, bind: bool = True, context: zmq.Context | None = None,
-                 hwm: int = 10000, curve_secret_key: bytes | None = None, curve_public_key: bytes | None = None) -> None:
+                 hwm: int = 10000, curve_secret_key: bytes | None = None, curve_public_key: bytes | None = None,
+                 curve: "CurveConfig | None" = None) -> None:
         self._ctx = context or zmq.Context.instance()
         self._sock = self._ctx.socket(zmq.PUB)
         self._sock.setsockopt(zmq.LINGER, 200)
         self._sock.setsockopt(zmq.SNDHWM, hwm)
-        if curve_secret_key is not None:
+        if curve is not None:  # CURVE server: encrypted, only authorized subscribers (atr_node.security)
+            curve.secure_server(self._sock)
+        elif curve_secret_key is not None:
             self._sock.curve_secretkey = curve_secret_key
             self._sock.curve_publickey = curve_public_key
             self._sock.curve_server = True
@@ -57,10 +63,13 @@ class Publisher:
 class Subscriber:
     """A SUB socket for tests, tools and the monitor: ``recv(timeout_s)`` -> (topic, map) or None."""
 
-    def __init__(self, endpoint: str, topics: tuple[bytes, ...] = (b"",), *, context: zmq.Context | None = None) -> None:
+    def __init__(self, endpoint: str, topics: tuple[bytes, ...] = (b"",), *, context: zmq.Context | None = None,
+                 curve: "CurveConfig | None" = None) -> None:
         self._ctx = context or zmq.Context.instance()
         self._sock = self._ctx.socket(zmq.SUB)
         self._sock.setsockopt(zmq.LINGER, 0)
+        if curve is not None:  # CURVE client: curve.server_public_key = the node's public key
+            curve.secure_client(self._sock)
         for t in topics:
             self._sock.setsockopt(zmq.SUBSCRIBE, t)
         self._sock.connect(endpoint)

@@ -153,15 +153,17 @@ class NodeService:
                 self._hb_thread.join(timeout=2.0)
         return ended
 
-    def run_live(self, link: Any, *, poll_s: float = 0.2) -> None:
+    def run_live(self, link: Any, *, poll_s: float = 0.2, finish_at_end: bool = False) -> None:
         """Feed a live link until a signal (or the link's end): never blocks longer than
-        ``poll_s`` without feeding the watchdog and letting held tiles go stale."""
+        ``poll_s`` without feeding the watchdog and letting held tiles go stale, and polls the
+        worker every 10 ms while it has units, so evidence is published as soon as it is ready.
+        ``finish_at_end``: when the link ends (a paced recording), flush and fuse everything."""
         self._start_heartbeat()
         self.notifier.ready()
         every = self.settings.node.snapshot_every_tiles
         try:
             while not self._stop.is_set() and not link.at_end:
-                rec = link.recv(timeout=poll_s)
+                rec = link.recv(timeout=0.01 if self.pipeline.inflight else poll_s)
                 if rec is not None:
                     self.pipeline.feed(rec)
                     self.position += 1
@@ -172,6 +174,8 @@ class NodeService:
                 self.notifier.watchdog()
                 if self.state_dir is not None and self.pipeline.stats.tiles_in - self._last_snap_tiles >= every:
                     self.snapshot()
+            if finish_at_end and link.at_end and not self._stop.is_set():
+                self.pipeline.finish()
             self.notifier.stopping()
             if self.state_dir is not None:
                 self.snapshot()

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -59,21 +60,28 @@ def save(state_dir: str | os.PathLike[str], pipeline: Any, *, position: int, sou
     folder = root / f"snap-{n}"
     if folder.exists():
         shutil.rmtree(folder)
-    folder.mkdir()
-    grid_snapshot.save(folder / "grid.npz", pipeline.grid, pipeline.tracker)
-    arrays, meta = _node_arrays(pipeline)
-    meta.update(format=FORMAT, version=VERSION, position=int(position), source=source)
-    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
-    with open(folder / "node.npz", "wb") as fh:
-        np.savez(fh, **arrays)
-        fh.flush()
-        os.fsync(fh.fileno())
-    _fsync_dir(folder)
     tmp = root / f".CURRENT.tmp-{os.getpid()}"
-    tmp.write_text(folder.name + "\n")
-    with open(tmp, "rb+") as fh:
-        os.fsync(fh.fileno())
-    os.replace(tmp, root / "CURRENT")
+    try:
+        folder.mkdir()
+        grid_snapshot.save(folder / "grid.npz", pipeline.grid, pipeline.tracker)
+        arrays, meta = _node_arrays(pipeline)
+        meta.update(format=FORMAT, version=VERSION, position=int(position), source=source)
+        arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
+        with open(folder / "node.npz", "wb") as fh:
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        _fsync_dir(folder)
+        tmp.write_text(folder.name + "\n")
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, root / "CURRENT")
+    except OSError:
+        # disk full or I/O error: CURRENT still names the previous complete snapshot; free
+        # the space the partial one took so the next attempt (or the recording) can succeed
+        shutil.rmtree(folder, ignore_errors=True)
+        tmp.unlink(missing_ok=True)
+        raise
     _fsync_dir(root)
     for old in root.glob("snap-*"):
         if old != folder:
@@ -88,7 +96,8 @@ def read_current(state_dir: str | os.PathLike[str]) -> Path | None:
     except FileNotFoundError:
         return None
     folder = root / name
-    return folder if name.startswith("snap-") and folder.is_dir() else None
+    # only a name this module writes: "snap-<n>", never a path that leads out of state_dir
+    return folder if re.fullmatch(r"snap-[0-9]{1,18}", name) and folder.is_dir() else None
 
 
 def load(state_dir: str | os.PathLike[str], pipeline: Any) -> dict[str, Any] | None:
@@ -120,7 +129,7 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     arrays: dict[str, np.ndarray] = {}
     meta: dict[str, Any] = {
         "frame": p.frame.to_dict() if p.frame is not None else None,
-        "tiles_merged": p.tiles_merged, "leg": p.leg, "strip_leg": p._strip_leg,
+        "tiles_merged": p.tiles_merged, "leg": p.leg, "strip_leg": p._strip_leg, "last_t": p._last_t,
         "stats": {k: getattr(p.stats, k) for k in ("records", "tiles_in", "tiles_done", "tiles_rejected",
                                                     "tiles_dropped", "units", "units_degraded", "pixels")},
         "model": p.model.to_dict() if getattr(p, "online", None) is not None else None,
@@ -155,6 +164,7 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     track.update({k[len("track_"):]: v for k, v in meta.items() if k.startswith("track_")})
     p.track.restore(track)
     p.tiles_merged = int(meta["tiles_merged"])
+    p._last_t = float(meta.get("last_t", 0.0))  # the time of the contacts published at finish()
     p._strip_leg = meta.get("strip_leg")
     p.leg = meta["leg"]
     for k, v in meta["stats"].items():
