@@ -79,10 +79,10 @@ class Contact:
 
     def same_content(self, other: "Contact") -> bool:
         """Equal apart from state and time (nothing new to publish)."""
-        a, b = dataclasses.asdict(self), dataclasses.asdict(other)
-        for k in ("state", "t"):
-            a.pop(k), b.pop(k)
-        return a == b
+        return all(getattr(self, k) == getattr(other, k) for k in _CONTENT_FIELDS)
+
+
+_CONTENT_FIELDS = tuple(f.name for f in dataclasses.fields(Contact) if f.name not in ("state", "t"))
 
 
 def label_cells(iy: np.ndarray, ix: np.ndarray) -> tuple[int, np.ndarray]:
