@@ -154,15 +154,18 @@ def open_link(spec: str, **options: Any) -> "Link":
     return link
 
 
-def open_links(settings: "LinkSettings") -> dict[str, "Link"]:
+def open_links(settings: "LinkSettings", *, curve: Any = None) -> dict[str, "Link"]:
     """Open the live links configured in ``[links]`` (empty URL or interface = not used).
 
     Returns ``{"sonar": ..., "nmea": ..., "can": ...}`` for the links configured; on failure
-    the links already opened are shut down before the error propagates.
+    the links already opened are shut down before the error propagates. ``curve``: an
+    :class:`atr_node.security.CurveConfig` for the tile socket (None = plain).
     """
     specs: dict[str, tuple[str, dict[str, Any]]] = {}
     if settings.sonar_endpoint:
         specs["sonar"] = ("sonar", {"endpoint": settings.sonar_endpoint, "socket": settings.sonar_socket})
+        if curve is not None:
+            specs["sonar"][1]["curve"] = curve
     if settings.nmea_url:
         specs["nmea"] = ("nmea", {"url": settings.nmea_url, "baudrate": settings.nmea_baudrate,
                                   "reconnect": settings.nmea_reconnect})

@@ -50,8 +50,11 @@ class NavDecoder:
         if record.link == "can":
             m = record.msg
             try:
+                # data must already be bytes: bytes(<int>) would allocate that many zeros
+                if not isinstance(m["data"], (bytes, bytearray)):
+                    raise TypeError("CAN data is not bytes")
                 cid, data, ext = int(m["id"]), bytes(m["data"]), bool(m["ext"])
-            except (TypeError, KeyError, ValueError):
+            except (TypeError, KeyError, ValueError, OverflowError):
                 self.can.counts["bad_frame"] += 1
                 return []
             return self.can.feed(cid, data, ext, record.t)

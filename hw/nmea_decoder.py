@@ -69,7 +69,7 @@ def _time_of_day(field: str) -> float:
 def _midnight(year: int, month: int, day: int, where: str) -> float:
     try:
         return datetime(year, month, day, tzinfo=timezone.utc).timestamp()
-    except ValueError:
+    except (ValueError, OverflowError):  # OverflowError: a year of 20 digits
         raise NmeaReject("bad_field", f"{where}: no such date {year:04d}-{month:02d}-{day:02d}") from None
 
 

@@ -49,7 +49,15 @@ class RecordingLink(Link):
         if rec is None:
             self.at_end = self.inner.at_end
             return None
-        self.writer.write_record(rec)
+        try:
+            self.writer.write_record(rec)
+        except OSError as exc:
+            # disk full: the record still goes to the node (its evidence is not lost live); the
+            # recording misses it, and the writer keeps the file whole for the records after
+            self.counts["record_failed"] += 1
+            if self.counts["record_failed"] == 1 or self.counts["record_failed"] % 1000 == 0:
+                log.error("recording %s: %s (%d records not recorded)", self.writer.path, exc,
+                          self.counts["record_failed"])
         return rec
 
     def _shutdown_internal(self) -> None:

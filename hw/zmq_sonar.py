@@ -16,15 +16,19 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import msgpack
 import zmq
 
+from atr_node.errors import AtrError
 from atr_node.io.atrlog import LogRecord
 
 from .base import Link
 from .errors import LinkError, LinkSpecError
+
+if TYPE_CHECKING:
+    from atr_node.security import CurveConfig
 
 log = logging.getLogger(__name__)
 MAX_TILE_BYTES = 512 << 20
@@ -49,12 +53,17 @@ class ZmqTileLink(Link):
         (PULL) or drops them (SUB).
     context
         ZeroMQ context to use (``inproc://`` needs the sender's); None = the process's instance.
+    curve
+        ZeroMQ CURVE (:mod:`atr_node.security`): a bound socket is a CURVE server admitting
+        the authorized peers, a connecting one a client of ``curve.server_public_key``.
+        None = plain (loopback on the bench).
     """
 
     kind = "sonar"
 
     def __init__(self, endpoint: str, *, socket: Literal["pull", "sub"] = "pull", bind: bool = False,
-                 topic: bytes | str = b"", rcvhwm: int = 100, context: zmq.Context | None = None) -> None:
+                 topic: bytes | str = b"", rcvhwm: int = 100, context: zmq.Context | None = None,
+                 curve: "CurveConfig | None" = None) -> None:
         super().__init__(endpoint)
         if socket not in ("pull", "sub"):
             raise LinkSpecError(f"sonar link {endpoint}: socket {socket!r}: expected 'pull' or 'sub'")
@@ -68,12 +77,16 @@ class ZmqTileLink(Link):
         if socket == "sub":
             self.sock.setsockopt(zmq.SUBSCRIBE, topic.encode("ascii") if isinstance(topic, str) else bytes(topic))
         try:
+            if curve is not None:
+                curve.secure_server(self.sock) if bind else curve.secure_client(self.sock)
             if bind:
                 self.sock.bind(endpoint)
             else:
                 self.sock.connect(endpoint)
-        except zmq.ZMQError as exc:
+        except (zmq.ZMQError, AtrError) as exc:
             self.sock.close(linger=0)
+            if isinstance(exc, AtrError):
+                raise LinkSpecError(f"sonar link {endpoint}: {exc}") from None
             raise LinkSpecError(f"sonar link: cannot {'bind' if bind else 'connect'} {endpoint!r}: {exc}; "
                                 f"expected an endpoint like 'tcp://127.0.0.1:5550'") from None
         self.bound_endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
@@ -94,7 +107,7 @@ class ZmqTileLink(Link):
         self.counts["bytes"] += len(payload)
         try:
             obj = msgpack.unpackb(payload, raw=False, strict_map_key=False)
-        except (ValueError, msgpack.ExtraData, msgpack.FormatError, msgpack.StackError) as exc:
+        except (ValueError, TypeError, msgpack.ExtraData, msgpack.FormatError, msgpack.StackError) as exc:
             return self._drop(f"not msgpack ({exc})", payload)
         if not isinstance(obj, dict):
             return self._drop(f"a msgpack {type(obj).__name__}, expected a map", payload)

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
                     n += 1
                 log.warning("resumed from snapshot %s and replayed %d records of %s", meta_folder, n, prev)
             service.snapshot()  # now the state accounts for nothing of the new recording
-        links = open_links(settings.links)
+        links = open_links(settings.links, curve=service.curve)
         if not links:
             print("atr-node run: no links configured in [links]", file=sys.stderr)
             return 1

@@ -111,7 +111,8 @@ class AtrLogReader:
                     log.warning(msg)
                     self.errors.append(msg)
                 return
-            except (msgpack.ExtraData, msgpack.FormatError, msgpack.StackError, ValueError) as exc:
+            except (msgpack.ExtraData, msgpack.FormatError, msgpack.StackError, ValueError, TypeError) as exc:
+                # TypeError: a map whose key is a map or array (unhashable)
                 # Not msgpack from here on: nothing after it can be framed reliably.
                 msg = f"{path}: undecodable data at byte {offset}: {exc}; the rest of the file is ignored"
                 if self.strict:
@@ -156,6 +157,7 @@ class AtrLogWriter:
         self.fsync = fsync
         self.records = 0
         self.bytes = self._fh.tell()
+        self._flushed = self.bytes
 
     def write(self, t: float, link: str, msg: Any) -> int:
         """Append one record; return its byte offset. The record is checked first."""
@@ -165,7 +167,11 @@ class AtrLogWriter:
             raise LogFormatError(why, path=str(self.path), offset=self.bytes)
         data = self._packer.pack(rec)
         offset = self.bytes
-        self._fh.write(data)
+        try:
+            self._fh.write(data)
+        except OSError:
+            self._rewind()
+            raise
         self.bytes += len(data)
         self.records += 1
         if self.records % self.flush_every == 0:
@@ -176,9 +182,29 @@ class AtrLogWriter:
         return self.write(rec.t, rec.link, rec.msg)
 
     def flush(self) -> None:
-        self._fh.flush()
-        if self.fsync:
-            os.fsync(self._fh.fileno())
+        """Flush to the OS. On an error (disk full), the file is cut back to the end of the last
+        flushed record and the error raised: the records since are not in the file, and the
+        file stays a sequence of whole records that later writes can extend."""
+        try:
+            self._fh.flush()
+            if self.fsync:
+                os.fsync(self._fh.fileno())
+        except OSError:
+            self._rewind()
+            raise
+        self._flushed = self.bytes
+
+    def _rewind(self) -> None:
+        try:
+            self._fh.close()  # drops what is still buffered (its flush fails again)
+        except OSError:
+            pass
+        try:
+            os.truncate(self.path, self._flushed)  # a partial record must not stay in the middle
+        except OSError:
+            pass
+        self._fh = open(self.path, "ab")
+        self.bytes = self._flushed
 
     def close(self) -> None:
         if not self._fh.closed:

@@ -165,7 +165,9 @@ class NavTrack:
     def restore(self, state: dict) -> None:
         for name, series in (("pos", self._pos), ("hdg", self._hdg), ("alt", self._alt)):
             t = np.asarray(state[f"{name}_t"], dtype=np.float64)
-            v = np.asarray(state[f"{name}_v"], dtype=np.float64).reshape(t.size, -1)
+            # explicit width: reshape(0, -1) fails, so a snapshot taken before any INS fix
+            # could not be restored and the node could not start again (found by a kill test)
+            v = np.asarray(state[f"{name}_v"], dtype=np.float64).reshape(t.size, series.v.shape[1])
             cap = max(64, 1 << int(np.ceil(np.log2(max(t.size, 1)))))
             series.t = np.empty(cap)
             series.v = np.empty((cap, series.v.shape[1]))

@@ -31,6 +31,10 @@ Side = Literal["port", "stbd"]
 Kind = Literal["intensity", "amplitude"]
 
 TILE_VERSION = 1
+SPACING_LIMITS_M = (1e-3, 100.0)
+"""Plausible dr_m and dx_m: outside, window sizes and range axes overflow (found by fuzzing)."""
+MAX_RANGE_M = 1e5
+"""Farthest plausible range of a tile's last column."""
 WIRE_DTYPES: dict[str, np.dtype] = {
     "float32": np.dtype("<f4"),
     "uint16": np.dtype("<u2"),
@@ -303,12 +307,12 @@ def parse_tile(m: Any) -> Tile:
         raise TileError(f"unknown version {m['v']!r}; this node reads v{TILE_VERSION}", tile=where, field="v")
     if not isinstance(m["mission"], str) or not m["mission"]:
         raise TileError("expected a non-empty string", tile=where, field="mission")
-    if not _is_int(m["leg"]) or m["leg"] < 0:
-        raise TileError(f"expected an integer >= 0, got {m['leg']!r}", tile=where, field="leg")
+    if not _is_int(m["leg"]) or not 0 <= m["leg"] < 1 << 63:  # int64 arrays hold it (fuzzing: 2^64 - 1 crashed)
+        raise TileError(f"expected an integer in [0, 2^63), got {m['leg']!r}", tile=where, field="leg")
     if m["side"] not in ("port", "stbd"):
         raise TileError(f"expected \"port\" or \"stbd\", got {m['side']!r}", tile=where, field="side")
-    if not _is_int(m["seq"]) or m["seq"] < 0:
-        raise TileError(f"expected an integer >= 0, got {m['seq']!r}", tile=where, field="seq")
+    if not _is_int(m["seq"]) or not 0 <= m["seq"] < 1 << 63:
+        raise TileError(f"expected an integer in [0, 2^63), got {m['seq']!r}", tile=where, field="seq")
     shape = m["shape"]
     if (not isinstance(shape, (list, tuple)) or len(shape) != 2 or not all(_is_int(s) for s in shape)
             or shape[0] < 1 or shape[1] < 1):
@@ -316,7 +320,7 @@ def parse_tile(m: Any) -> Tile:
     rows, cols = int(shape[0]), int(shape[1])
     if rows * cols > 1 << 28:
         raise TileError(f"{rows} x {cols} pixels is more than the 2^28 a tile may hold", tile=where, field="shape")
-    if m["dtype"] not in WIRE_DTYPES:
+    if not isinstance(m["dtype"], str) or m["dtype"] not in WIRE_DTYPES:  # a list or map is unhashable
         raise TileError(f"expected one of {list(WIRE_DTYPES)}, got {m['dtype']!r}", tile=where, field="dtype")
     dt = WIRE_DTYPES[m["dtype"]]
     data = m["data"]
@@ -337,6 +341,12 @@ def parse_tile(m: Any) -> Tile:
     for k in ("dr_m", "dx_m"):
         if m[k] <= 0:
             raise TileError(f"expected > 0, got {m[k]!r}", tile=where, field=k)
+        if not SPACING_LIMITS_M[0] <= m[k] <= SPACING_LIMITS_M[1]:
+            raise TileError(f"{m[k]!r} m is not a plausible spacing: expected {SPACING_LIMITS_M[0]} to "
+                            f"{SPACING_LIMITS_M[1]} m", tile=where, field=k)
+    if m["range0_m"] + m["dr_m"] * cols > MAX_RANGE_M:
+        raise TileError(f"the last column is at {m['range0_m'] + m['dr_m'] * (cols - 1)!r} m: expected at most "
+                        f"{MAX_RANGE_M:g} m", tile=where, field="range0_m")
     if not isinstance(m["slant"], bool):
         raise TileError(f"expected true or false, got {m['slant']!r}", tile=where, field="slant")
     ping_time = _f64_bin(m["ping_time"], rows, where, "ping_time")
