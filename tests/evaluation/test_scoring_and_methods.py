@@ -16,23 +16,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from atr_node.calibration.model import PerformanceModel
-from atr_node.config import load_settings
 from atr_node.errors import AtrError
 from atr_node.evaluation.evaluate import evaluate_log
 from atr_node.evaluation.scoring import local_en, match, read_truth, roc
 from atr_node.fusion.baselines import leader_groups
-from atr_node.simulation.mission import generate_mission
-
-SMALL = """
-[simulation]
-mission_legs = 3
-mission_leg_length_m = 70.0
-mission_swath_m = 30.0
-mission_targets = 5
-mission_tile_pings = 128
-mission_clutter_per_km2 = 1000.0
-"""
-
 
 def brute_force_matches(c, t, r):
     """Largest number of one-to-one pairs within r, by trying every assignment."""
@@ -99,15 +86,6 @@ def test_truth_file_errors(tmp_path):
     p.write_text("lat_deg,lon_deg,shape\n44.0,abc,cylinder\n")
     with pytest.raises(AtrError, match="line 2"):
         read_truth(p)
-
-
-@pytest.fixture(scope="module")
-def small_mission(tmp_path_factory):
-    d = tmp_path_factory.mktemp("eval")
-    cfg = d / "small.toml"
-    cfg.write_text(SMALL)
-    s = load_settings(cfg)
-    return s, cfg, generate_mission(s, d, seed=5)
 
 
 def test_evaluate_log_compares_every_method_on_the_same_detections(small_mission, tmp_path):

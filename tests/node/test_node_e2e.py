@@ -18,37 +18,15 @@ import numpy as np
 import pytest
 
 from atr_node.calibration.model import PerformanceModel
-from atr_node.config import Settings, load_settings
+from atr_node.config import Settings
 from atr_node.io.atrlog import AtrLogWriter, read_atrlog
 from atr_node.node import wire
 from atr_node.node.pipeline import Pipeline
 from atr_node.node.service import NodeService
-from atr_node.simulation.mission import generate_mission
-
-SMALL_MISSION = """
-[simulation]
-mission_legs = 3
-mission_leg_length_m = 70.0
-mission_swath_m = 30.0
-mission_targets = 5
-mission_tile_pings = 128
-mission_clutter_per_km2 = 1000.0
-
-[node]
-snapshot_every_tiles = 4
-queue_tiles = 4
-heartbeat_s = 0.2
-"""
-
 
 @pytest.fixture(scope="module")
-def mission(tmp_path_factory):
-    d = tmp_path_factory.mktemp("mission")
-    cfg = d / "small.toml"
-    cfg.write_text(SMALL_MISSION)
-    settings = load_settings(cfg)
-    files = generate_mission(settings, d, seed=7)
-    return settings, cfg, files
+def mission(small_mission):
+    return small_mission
 
 
 def replay_in_process(settings: Settings, log_path, *, workers: int) -> list[dict]:

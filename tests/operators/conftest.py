@@ -9,35 +9,12 @@ from typing import Any, Callable
 import pytest
 
 from atr_node.calibration.model import PerformanceModel
-from atr_node.config import load_settings
 from atr_node.io.atrlog import read_atrlog
 from atr_node.node.service import NodeService
-from atr_node.simulation.mission import generate_mission
-
-SMALL_MISSION = """
-[simulation]
-mission_legs = 3
-mission_leg_length_m = 70.0
-mission_swath_m = 30.0
-mission_targets = 5
-mission_tile_pings = 128
-mission_clutter_per_km2 = 1000.0
-
-[node]
-snapshot_every_tiles = 4
-queue_tiles = 4
-heartbeat_s = 0.2
-"""
-
 
 @pytest.fixture(scope="session")
-def mission(tmp_path_factory):
-    d = tmp_path_factory.mktemp("ops_mission")
-    cfg = d / "small.toml"
-    cfg.write_text(SMALL_MISSION)
-    settings = load_settings(cfg)
-    files = generate_mission(settings, d, seed=7)
-    return settings, cfg, files
+def mission(small_mission):
+    return small_mission
 
 
 @dataclass
