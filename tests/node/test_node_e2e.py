@@ -65,8 +65,12 @@ while time.monotonic() < deadline:
     topic, msg = got
     out.write(json.dumps({"topic": topic, "msg": msg}) + "\n")
     out.flush()
-    if topic == "heartbeat" and msg.get("tiles_done", 0) >= int(sys.argv[4]):
-        break
+    # every tile in and nothing waiting (a live node keeps the last leg's last rows until the
+    # next leg): a couple more heartbeats, then done
+    if topic == "heartbeat" and msg.get("tiles_in", 0) >= int(sys.argv[4]) and msg.get("queue_depth", 1) == 0:
+        quiet_since = quiet_since or time.monotonic()
+        if time.monotonic() - quiet_since > 1.0:
+            break
 """
 
 
