@@ -131,6 +131,10 @@ class BackgroundTracker:
         """Forget everything (a new leg)."""
         self._b = None
 
+    def restore(self, background: np.ndarray | None) -> None:
+        """Start from a saved b(j) (a node restarting from its snapshot)."""
+        self._b = None if background is None else np.asarray(background, dtype=np.float64).copy()
+
     def update(self, pixels: np.ndarray) -> np.ndarray:
         """Fold one tile in and return the updated b(j), float64 (cols,).
 

@@ -133,7 +133,7 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         "stats": {k: getattr(p.stats, k) for k in ("records", "tiles_in", "tiles_done", "tiles_rejected",
                                                     "tiles_dropped", "units", "units_degraded", "pixels")},
         "model": p.model.to_dict() if getattr(p, "online", None) is not None else None,
-        "online_done": bool(getattr(p.online, "_done", False)) if getattr(p, "online", None) is not None else None,
+        "online_done": bool(p.online.done) if getattr(p, "online", None) is not None else None,
         "strips": None, "bg": [],
     }
     for k, v in p.track.state().items():
@@ -196,6 +196,6 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     for i, (leg, side) in enumerate(meta["bg"]):
         bg, med = BackgroundTracker(f), _MedianTracker(f)
         b, m = a[f"bg_{i}_b"], a[f"bg_{i}_m"]
-        bg._b = b if b.size else None
+        bg.restore(b if b.size else None)
         med.m = m if m.size else None
         p._bg[(int(leg), side)] = (bg, med)
