@@ -49,6 +49,9 @@ class MissionResult:
     covered_km2: float
     targets: int
     stats: dict[str, Any] = field(default_factory=dict)
+    run: Any = field(default=None, repr=False)
+    """The :class:`EvaluationRun` (detections, model), for further analysis; not saved."""
+    comparison: Any = field(default=None, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "targets": self.targets, "covered_km2": self.covered_km2,
@@ -127,7 +130,8 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
         except Exception as exc:  # plotting must not lose the evaluation
             figs["pyr_error"] = str(exc)
     result = MissionResult(name, rows, claims, figs, km2, len(truth),
-                           stats={**run.stats, "ranking": rank, "node_contacts": len(run.node_contacts)})
+                           stats={**run.stats, "ranking": rank, "node_contacts": len(run.node_contacts)},
+                           run=run, comparison=cmp)
     (out / "result.json").write_text(json.dumps(result.to_dict(), indent=2, default=str))
     return result
 
