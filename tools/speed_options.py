@@ -101,7 +101,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         base = base.replace(simulation=dataclasses.replace(base.simulation, mission_legs=3, mission_leg_length_m=70.0,
                                                            mission_swath_m=30.0, mission_targets=5,
-                                                           mission_tile_pings=128))
+                                                           mission_tile_pings=128),
+                            calibration=dataclasses.replace(base.calibration, online_tiles=2, online_iterations=2,
+                                                            targets_per_image=10))
     opts = options(base)
     if args.quick:
         opts = [opts[0], opts[2], opts[-1]]

@@ -130,11 +130,7 @@ class NodeService:
             for i, rec in enumerate(records, start=start):
                 self.pipeline.feed(rec)
                 self.position = i + 1
-                if self.exchange is not None:
-                    self.exchange.pump()
-                self.notifier.watchdog()
-                if self.state_dir is not None and self.pipeline.stats.tiles_in - self._last_snap_tiles >= every:
-                    self.snapshot()
+                self._after_step(every)
                 if self._stop.is_set():
                     ended = False
                     break
@@ -169,11 +165,7 @@ class NodeService:
                     self.position += 1
                 else:
                     self.pipeline.tick(time.time())
-                if self.exchange is not None:
-                    self.exchange.pump()
-                self.notifier.watchdog()
-                if self.state_dir is not None and self.pipeline.stats.tiles_in - self._last_snap_tiles >= every:
-                    self.snapshot()
+                self._after_step(every)
             if finish_at_end and link.at_end and not self._stop.is_set():
                 self.pipeline.finish()
             self.notifier.stopping()
@@ -182,6 +174,14 @@ class NodeService:
         finally:
             self._send_heartbeat()
             self._hb_stop.set()
+
+    def _after_step(self, every: int) -> None:
+        """After each record (or idle poll): peers' evidence, the watchdog, a snapshot when due."""
+        if self.exchange is not None:
+            self.exchange.pump()
+        self.notifier.watchdog()
+        if self.state_dir is not None and self.pipeline.stats.tiles_in - self._last_snap_tiles >= every:
+            self.snapshot()
 
     def snapshot(self) -> None:
         self.pipeline.drain()
