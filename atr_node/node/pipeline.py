@@ -72,9 +72,12 @@ class PipelineStats:
     latency_s: deque = field(default_factory=lambda: deque(maxlen=2000))
 
     def latency_ms(self) -> tuple[float, float]:
-        if not self.latency_s:
+        # tuple() copies the deque in one C call under the GIL: safe while the pipeline thread
+        # appends (the heartbeat thread calls this)
+        lat = tuple(self.latency_s)
+        if not lat:
             return 0.0, 0.0
-        a = np.asarray(self.latency_s) * 1000.0
+        a = np.asarray(lat) * 1000.0
         return float(np.percentile(a, 50)), float(np.percentile(a, 99))
 
 
