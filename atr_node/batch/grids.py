@@ -60,9 +60,7 @@ def recording_deltas(path: str, settings: Settings, model: PerformanceModel, nod
     pipe = Pipeline(settings, model=model, workers=0, mode="replay")
     try:
         grid = attach_exchange(pipe, node=node)
-        for rec in open_recording(path):
-            pipe.feed(rec)
-        pipe.finish()
+        pipe.replay(open_recording(path))
     finally:
         pipe.close()
     st = pipe.stats

@@ -186,6 +186,13 @@ class Pipeline:
             self._on_tile(tile)
         self._collect(block=False)
 
+    def replay(self, records) -> "Pipeline":
+        """Feed every record, then :meth:`finish` (a whole recording in replay mode)."""
+        for rec in records:
+            self.feed(rec)
+        self.finish()
+        return self
+
     def tick(self, now: float) -> None:
         """Periodic work with no record: release held tiles whose INS went silent, fuse what
         the worker finished (the live loop calls it when the links are quiet)."""

@@ -32,10 +32,7 @@ def mission(small_mission):
 def replay_in_process(settings: Settings, log_path, *, workers: int) -> list[dict]:
     pipe = Pipeline(settings, model=PerformanceModel.shipped(), workers=workers, mode="replay")
     try:
-        for rec in read_atrlog(log_path):
-            pipe.feed(rec)
-        pipe.finish()
-        return pipe.contacts
+        return pipe.replay(read_atrlog(log_path)).contacts
     finally:
         pipe.close()
 

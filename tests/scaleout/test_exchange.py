@@ -26,9 +26,7 @@ def run_vehicle(settings, log, node):
     pipe = Pipeline(settings, model=PerformanceModel.shipped(), workers=0, mode="replay")
     try:
         grid = attach_exchange(pipe, node=node)
-        for rec in read_atrlog(log):
-            pipe.feed(rec)
-        pipe.finish()
+        pipe.replay(read_atrlog(log))
     finally:
         pipe.close()
     return pipe, list(grid.outbox)
