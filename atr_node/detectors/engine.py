@@ -53,7 +53,7 @@ def _column_array(value: np.ndarray | None, cols: int, what: str) -> np.ndarray 
 
 def _build_tables(x: np.ndarray, valid: np.ndarray, all_valid: bool, separable: bool, needs: set[str],
                   b_eff: np.ndarray, med: np.ndarray | None, pad: Padding, float64: bool,
-                  workspace: Workspace | None) -> SummedAreaTables:
+                  workspace: Workspace | None, *, col_valid: np.ndarray, row_valid: np.ndarray) -> SummedAreaTables:
     """Fill the padded images the needed sums read, block of rows by block, and integrate each.
 
     With a ``separable`` valid mask (every column all valid or all empty) the counts come from
@@ -119,12 +119,18 @@ def _build_tables(x: np.ndarray, valid: np.ndarray, all_valid: bool, separable: 
             agb += lows
 
     if separable and not all_valid:
-        # No data in whole columns: zero them run by run.
-        empty = np.flatnonzero(~valid[0])
-        for run in np.split(empty, np.flatnonzero(np.diff(empty) > 1) + 1):
-            cols = slice(int(run[0]), int(run[-1]) + 1)
-            for buf in ([p_in] if want_p else []) + ([j_in] if want_j else []):
-                buf[:, cols] = 0
+        # No data in whole columns and whole rows: zero them run by run.
+        bufs = ([p_in] if want_p else []) + ([j_in] if want_j else [])
+        empty = np.flatnonzero(~col_valid)
+        if empty.size:
+            for run in np.split(empty, np.flatnonzero(np.diff(empty) > 1) + 1):
+                cols = slice(int(run[0]), int(run[-1]) + 1)
+                for buf in bufs:
+                    buf[:, cols] = 0
+        empty_rows = np.flatnonzero(~row_valid)
+        if empty_rows.size:
+            for buf in bufs:
+                buf[empty_rows, :] = 0
     if not separable:
         sat.add("n", n_full, cv2.CV_32S)
     if want_p and "p2_S" in needs:
@@ -174,15 +180,20 @@ def _score_rows(x: np.ndarray, *, first_row: int, stop_row: int, range0_m: float
     needs = set().union(*(NEEDS[d] for d in names))
     valid = np.isfinite(x)
     per_col = np.count_nonzero(valid, axis=0)
+    per_row = np.count_nonzero(valid, axis=1)
     all_valid = bool((per_col == rows).all())
-    # Common case: no data only in whole columns (nadir gap, beyond maximum range).
-    separable = bool(((per_col == rows) | (per_col == 0)).all())
+    # Common case: no data only in whole columns (nadir gap, beyond maximum range) and whole
+    # rows (ping drop-outs): the valid mask is the outer product of a row and a column mask
+    # exactly when every column holds all the non-empty rows and every row all the non-empty
+    # columns (or nothing).
+    n_vrows, n_vcols = int(np.count_nonzero(per_row)), int(np.count_nonzero(per_col))
+    separable = bool(((per_col == n_vrows) | (per_col == 0)).all() and ((per_row == n_vcols) | (per_row == 0)).all())
 
     b = _column_array(background, cols, "background")
     if b is None and needs & {"p_E", "p_S", "j_E", "j_S"}:
         # With whole-column no-data a plain column sum gives the NaN-aware mean (NaN columns
         # stay NaN, as column_mean gives them), one pass cheaper.
-        b = x.sum(axis=0, dtype=np.float64) / rows if separable else column_mean(x)
+        b = x.sum(axis=0, dtype=np.float64) / rows if separable and n_vrows == rows else column_mean(x)
     # A column without data or with b <= 0 (all zeros) keeps I_n = I: its windows are NaN or 0.
     b_eff = np.ones(cols) if b is None else np.where(np.isfinite(b) & (b > 0), b, 1.0)
     med = _column_array(median, cols, "median")
@@ -197,9 +208,11 @@ def _score_rows(x: np.ndarray, *, first_row: int, stop_row: int, range0_m: float
         median_n = np.nan_to_num(med / b_eff, nan=1.0, posinf=1.0, neginf=1.0)
         table_needs = (needs - {"j_E", "j_S"}) | {"p_E", "p_S"}
     pad = Padding.for_geometry(geom)
-    sat = _build_tables(x, valid, all_valid, separable, table_needs, b_eff, med, pad, float64, workspace)
+    sat = _build_tables(x, valid, all_valid, separable, table_needs, b_eff, med, pad, float64, workspace,
+                        col_valid=per_col > 0, row_valid=per_row > 0)
     return read_scores(sat, geom, names, needs, first_row, n_out, detectors, ftype,
-                       col_valid=per_col > 0 if separable else None, median_n=median_n)
+                       col_valid=per_col > 0 if separable else None, median_n=median_n,
+                       row_valid=per_row > 0 if separable else None)
 
 
 def score_maps(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: float, altitude_m: float,

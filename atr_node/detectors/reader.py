@@ -23,13 +23,16 @@ _BLOCK_BYTES = 1 << 20
 
 
 def _separable_recip(anchor_rows: np.ndarray, rows_off: tuple[int, int], cols_in: np.ndarray,
-                     need: np.ndarray, n_rows: int, ftype: type) -> np.ndarray:
+                     need: np.ndarray, row_pre: np.ndarray, ftype: type) -> np.ndarray:
     """1 / valid count of a window when the valid mask is separable, NaN below ``need``.
 
-    The count is (tile rows inside the window) x (valid columns inside it); away from the
-    tile's top and bottom the first factor is constant and the result one broadcast row.
+    The count is (valid tile rows inside the window) x (valid columns inside it), the rows
+    from ``row_pre``, the prefix sums of the valid rows; where the first factor is constant
+    (away from the tile's top and bottom and from ping drop-outs) the result is one
+    broadcast row.
     """
-    rows_in = np.clip(anchor_rows + rows_off[1], 0, n_rows) - np.clip(anchor_rows + rows_off[0], 0, n_rows)
+    n_rows = row_pre.size - 1
+    rows_in = row_pre[np.clip(anchor_rows + rows_off[1], 0, n_rows)] - row_pre[np.clip(anchor_rows + rows_off[0], 0, n_rows)]
     if rows_in.min() == rows_in.max():
         n = (int(rows_in[0]) * cols_in)[None, :]
     else:
@@ -74,11 +77,12 @@ def _separable_setup(geom: WindowGeometry, js: np.ndarray, needs: set[str], col_
 def read_scores(sat: SummedAreaTables, geom: WindowGeometry, names: tuple[str, ...], needs: set[str],
                  first_row: int, n_out: int, detectors: DetectorSettings, ftype: type,
                  col_valid: np.ndarray | None = None,
-                 median_n: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                 median_n: np.ndarray | None = None, row_valid: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Read the window sums block by block and apply the formulas (SPEC 2).
 
-    ``col_valid`` (cols,) marks a separable valid mask: counts are then products of rows and
-    valid columns inside each window, with no mask table. With it, ``median_n`` (cols,), the
+    ``col_valid`` (cols,) and ``row_valid`` (rows,; None = every row) mark a separable valid
+    mask: counts are then products of valid rows and valid columns inside each window, with
+    no mask table. With it, ``median_n`` (cols,), the
     per-column median of I_n, gives the matched filter's means from those of I_n.
     """
     step = detectors.decimation
@@ -104,6 +108,8 @@ def read_scores(sat: SummedAreaTables, geom: WindowGeometry, names: tuple[str, .
     derived: dict[str, tuple[str, np.ndarray]] = {}
     if col_valid is not None:
         needs, cols_in, derived = _separable_setup(geom, js, needs, col_valid, median_n, ftype)
+        rv = np.ones(sat.rows, dtype=np.int64) if row_valid is None else row_valid.astype(np.int64)
+        row_pre = np.concatenate([[0], np.cumsum(rv)])
 
     for k0 in range(0, rows_dec, block):
         count = min(block, rows_dec - k0)
@@ -127,7 +133,7 @@ def read_scores(sat: SummedAreaTables, geom: WindowGeometry, names: tuple[str, .
         if col_valid is not None:
             anchors_i = first_row + (k0 + np.arange(count)) * step
             for w in windows:
-                recip[w] = _separable_recip(anchors_i, rows_off[w], cols_in[w], need[w], sat.rows, ftype)
+                recip[w] = _separable_recip(anchors_i, rows_off[w], cols_in[w], need[w], row_pre, ftype)
         for w in ("E", "S", "C"):
             if f"n_{w}" in s:
                 n = s.pop(f"n_{w}")

@@ -31,6 +31,13 @@ def nan_columns(rng: np.random.Generator) -> np.ndarray:
     return img
 
 
+def nan_rows_and_columns(rng: np.random.Generator) -> np.ndarray:
+    """No data in whole columns and whole rows (nadir gap, ping drop-outs): still separable."""
+    img = nan_columns(rng)
+    img[[0, 7, 8, 9, 21, 39], :] = np.nan
+    return img
+
+
 def quantized(rng: np.random.Generator) -> np.ndarray:
     """Integer gray levels (as from a uint8 tile): pixels hit 0.3m, 0.6m, 2m and 4m exactly."""
     img = rng.integers(0, 41, size=(40, 60)).astype(np.float32)
@@ -40,7 +47,7 @@ def quantized(rng: np.random.Generator) -> np.ndarray:
 
 
 SCENES = {"random": lambda rng: rayleigh(rng, 40, 60), "structured": structured, "nan_columns": nan_columns,
-          "quantized": quantized}
+          "nan_rows_and_columns": nan_rows_and_columns, "quantized": quantized}
 
 
 @pytest.mark.parametrize("scene", sorted(SCENES))
@@ -63,7 +70,7 @@ def test_window_grows_with_range_and_hits_both_clips(template):
     assert len(np.unique(g.shadow_px)) == 8
 
 
-@pytest.mark.parametrize("scene", ["structured", "nan_columns"])
+@pytest.mark.parametrize("scene", ["structured", "nan_columns", "nan_rows_and_columns"])
 def test_given_background_and_median_are_used(scene, rng, template, settings):
     img = SCENES[scene](rng)
     if scene == "structured":
