@@ -114,12 +114,16 @@ class BackgroundTracker:
     ----------
     forgetting : float
         f in [0, 1): the weight of the past (``DetectorSettings.background_forgetting``).
+    statistic : callable, optional
+        The per-column statistic of a tile: :func:`column_mean` for b(j) (default), or
+        :func:`column_median` to track the SMF and matched-filter median m(j) the same way.
     """
 
-    def __init__(self, forgetting: float) -> None:
+    def __init__(self, forgetting: float, *, statistic=None) -> None:
         if not 0.0 <= forgetting < 1.0:
             raise AtrError(f"BackgroundTracker: forgetting must be in [0, 1), got {forgetting!r}")
         self.forgetting = float(forgetting)
+        self.statistic = column_mean if statistic is None else statistic
         self._b: np.ndarray | None = None
 
     @property
@@ -144,7 +148,7 @@ class BackgroundTracker:
             The tile's column count differs from the previous tiles' (the leg changed
             geometry without a :meth:`reset`); the tracker is left unchanged.
         """
-        b_tile = column_mean(pixels)
+        b_tile = self.statistic(pixels)
         if self._b is None:
             self._b = b_tile
             return self._b.copy()

@@ -30,6 +30,22 @@ def _pyplot():
     return plt
 
 
+def _save(plt, fig, path: str | os.PathLike[str]) -> Path:
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
+
+
+def _save_map(plt, fig, ax, path: str | os.PathLike[str], title: str) -> Path:
+    """A map in the mission frame: axis labels, title, saved."""
+    ax.set_xlabel("east (m, mission frame)")
+    ax.set_ylabel("north (m)")
+    ax.set_title(title)
+    return _save(plt, fig, path)
+
+
 class Mosaic:
     """Decimated, georeferenced samples of every unit's core, binned into a picture."""
 
@@ -95,15 +111,8 @@ def plot_mosaic(mosaic: Mosaic, path: str | os.PathLike[str], *, truth_en: np.nd
         for c in hi:
             ax.annotate(f"{c['id']}: {c['bel']:.2f}", (c["east_m"], c["north_m"]), xytext=(4, 4),
                         textcoords="offset points", fontsize=7, color="yellow")
-    ax.set_xlabel("east (m, mission frame)")
-    ax.set_ylabel("north (m)")
-    ax.set_title(title)
     ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save_map(plt, fig, ax, path, title)
 
 
 def belief_raster(grid: EvidenceGrid) -> tuple[np.ndarray, tuple[float, float, float, float]]:
@@ -148,14 +157,7 @@ def plot_belief(grid: EvidenceGrid, path: str | os.PathLike[str], *, truth_en: n
         ax.scatter(truth_en[:, 0], truth_en[:, 1], s=160, facecolors="none", edgecolors="red", linewidths=1.2,
                    label="truth target")
         ax.legend(loc="upper right", fontsize=8)
-    ax.set_xlabel("east (m, mission frame)")
-    ax.set_ylabel("north (m)")
-    ax.set_title(title)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save_map(plt, fig, ax, path, title)
 
 
 def plot_roc(curves: Sequence[RocCurve], points: Sequence[RocCurve], path: str | os.PathLike[str], *,
@@ -187,8 +189,4 @@ def plot_roc(curves: Sequence[RocCurve], points: Sequence[RocCurve], path: str |
             sec = ax.secondary_xaxis("top", functions=(lambda x: x / covered_km2, lambda y: y * covered_km2))
             sec.set_xlabel("false alarms per km$^2$")
     fig.suptitle(title)
-    fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return _save(plt, fig, path)

@@ -81,21 +81,9 @@ class PipelineStats:
         return float(np.percentile(a, 50)), float(np.percentile(a, 99))
 
 
-class _MedianTracker:
-    """Per-range median m(j) with the same forgetting as the background (SPEC section 2)."""
-
-    def __init__(self, forgetting: float) -> None:
-        self.f = forgetting
-        self.m: np.ndarray | None = None
-
-    def update(self, pixels: np.ndarray) -> np.ndarray:
-        new = column_median(pixels)
-        if self.m is None or self.m.shape != new.shape:
-            self.m = new
-        else:
-            both = np.isfinite(new) & np.isfinite(self.m)
-            self.m = np.where(both, self.f * self.m + (1 - self.f) * new, np.where(np.isfinite(new), new, self.m))
-        return self.m.copy()
+def _trackers(forgetting: float) -> tuple[BackgroundTracker, BackgroundTracker]:
+    """The leg's b(j) and m(j) trackers, with the same forgetting (SPEC section 2)."""
+    return BackgroundTracker(forgetting), BackgroundTracker(forgetting, statistic=column_median)
 
 
 class Pipeline:
@@ -140,7 +128,8 @@ class Pipeline:
         self.tracker: ContactTracker | None = None
         self.gate_m = association_gate_m(settings.fusion, settings.template)
         self.grid = EvidenceGrid(settings.fusion, gate_m=self.gate_m, detectors=self.enabled)
-        self._bg: dict[tuple[int, str], tuple[BackgroundTracker, _MedianTracker]] = {}
+        self._bg: dict[tuple[int, str], tuple[BackgroundTracker, BackgroundTracker]] = {}
+        """Per (leg, side): trackers of the background b(j) and the median m(j)."""
         self._arrival: dict[tuple[str, int], float] = {}
         self._inflight: deque[tuple[StripUnit, PerformanceModel, Future | DetectResult]] = deque()
         self.sweep: dict[str, tuple[float, ...]] | None = None
@@ -296,7 +285,7 @@ class Pipeline:
         if key not in self._bg:
             f = self.settings.detectors.background_forgetting
             self._bg = {k: v for k, v in self._bg.items() if k[0] == unit.leg}  # a new leg: forget older ones
-            self._bg[key] = (BackgroundTracker(f), _MedianTracker(f))
+            self._bg[key] = _trackers(f)
         bg_tracker, med_tracker = self._bg[key]
         b = bg_tracker.background
         if b is not None and b.shape[0] != unit.pixels.shape[1]:
@@ -304,7 +293,7 @@ class Pipeline:
             # mission name or range axis in the same leg; found by fuzzing): start the
             # background afresh rather than fail
             bg_tracker.reset()
-            med_tracker.m = None
+            med_tracker.reset()
         core_px = unit.pixels[unit.core]
         background = bg_tracker.update(core_px)
         median = med_tracker.update(core_px)

@@ -34,7 +34,6 @@ from ..errors import AtrError
 from ..fusion import ContactTracker
 from ..fusion import snapshot as grid_snapshot
 from ..geo import MissionFrame
-from ..detectors import BackgroundTracker
 from .strip import StripAssembler
 
 FORMAT = "atr-node node state"
@@ -155,7 +154,7 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     for i, ((leg, side), (bg, med)) in enumerate(p._bg.items()):
         meta["bg"].append([leg, side])
         arrays[f"bg_{i}_b"] = bg.background if bg.background is not None else np.zeros(0)
-        arrays[f"bg_{i}_m"] = med.m if med.m is not None else np.zeros(0)
+        arrays[f"bg_{i}_m"] = med.background if med.background is not None else np.zeros(0)
     return arrays, meta
 
 
@@ -185,7 +184,7 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
             state[side] = d
         p.strips.restore(state)
     from ..records.tile import Tile
-    from .pipeline import _MedianTracker
+    from .pipeline import _trackers
 
     p.merger._held.clear()
     for i in range(int(meta.get("held", 0))):
@@ -194,8 +193,8 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     p._bg = {}
     f = p.settings.detectors.background_forgetting
     for i, (leg, side) in enumerate(meta["bg"]):
-        bg, med = BackgroundTracker(f), _MedianTracker(f)
+        bg, med = _trackers(f)
         b, m = a[f"bg_{i}_b"], a[f"bg_{i}_m"]
         bg.restore(b if b.size else None)
-        med.m = m if m.size else None
+        med.restore(m if m.size else None)
         p._bg[(int(leg), side)] = (bg, med)
