@@ -117,6 +117,7 @@ def soak(log: Path, settings, work: Path, *, sample_s: float = 0.5, workers: int
                 pass
 
     th = threading.Thread(target=sampler, name="soak-sampler", daemon=True)
+    take()  # the first and the last sample do not depend on how fast the replay runs
     th.start()
     try:
         service.run(read_atrlog(log))
