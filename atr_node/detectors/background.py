@@ -72,27 +72,37 @@ def column_median(pixels: np.ndarray, *, valid_counts: np.ndarray | None = None)
     rows, cols = a.shape
     if rows == 0 or cols == 0:
         return np.full(cols, np.nan)
-    at = cv2.transpose(a)  # (cols, rows), each column contiguous
-    n = np.count_nonzero(np.isfinite(a), axis=0) if valid_counts is None else np.asarray(valid_counts)
+    n = cv2.reduce(np.isfinite(a).view(np.uint8), 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).reshape(-1) \
+        if valid_counts is None else np.asarray(valid_counts)
+    n = n.astype(np.int64)
     k = rows - n
-    partial = np.flatnonzero((k > 0) & (k < rows))
-    if partial.size:
-        # Rank of each missing pixel among its column's missing pixels; the first k // 2 go low.
-        # Only partly valid columns need it: empty ones give NaN whatever they hold.
-        sub = at[partial]
-        miss = ~np.isfinite(sub)
-        low = (np.cumsum(miss, axis=1, dtype=np.int32) <= (k[partial] // 2)[:, None]) & miss
-        sub[miss] = np.inf
-        sub[low] = -np.inf
-        at[partial] = sub
+    mid = (rows - 1) // 2
+    centre, below, above = np.empty(cols), np.empty(cols), np.empty(cols)
+    # Columns a block at a time: the block's transposed copy stays in cache and reuses memory
+    # (a whole transposed copy of a large tile costs more in page faults than the partition).
+    step = max(1, _MEDIAN_BLOCK_BYTES // (4 * rows))
+    for c0 in range(0, cols, step):
+        c1 = min(cols, c0 + step)
+        at = cv2.transpose(a[:, c0:c1])  # (block cols, rows), each column contiguous
+        if at.ndim == 1:  # OpenCV gives a 1-D array for a single column
+            at = at.reshape(1, rows)
+        kb = k[c0:c1]
+        partial = np.flatnonzero((kb > 0) & (kb < rows))
+        if partial.size:
+            # Rank of each missing pixel among its column's missing pixels; the first k // 2 go
+            # low. Only partly valid columns need it: empty ones give NaN whatever they hold.
+            sub = at[partial]
+            miss = ~np.isfinite(sub)
+            low = (np.cumsum(miss, axis=1, dtype=np.int32) <= (kb[partial] // 2)[:, None]) & miss
+            sub[miss] = np.inf
+            sub[low] = -np.inf
+            at[partial] = sub
+        at.partition(mid, axis=1)  # in place: ``at`` is our own transposed copy
+        centre[c0:c1] = at[:, mid]
+        below[c0:c1] = at[:, :mid].max(axis=1, initial=-np.inf)
+        above[c0:c1] = at[:, mid + 1:].min(axis=1, initial=np.inf)
     lo = k // 2 + (n - 1) // 2
     hi = k // 2 + n // 2
-    mid = (rows - 1) // 2
-    at.partition(mid, axis=1)  # in place: ``at`` is our own transposed copy
-    part = at
-    centre = part[:, mid].astype(np.float64)
-    below = part[:, :mid].max(axis=1, initial=-np.inf).astype(np.float64)
-    above = part[:, mid + 1:].min(axis=1, initial=np.inf).astype(np.float64)
 
     def pick(rank: np.ndarray) -> np.ndarray:
         return np.where(rank < mid, below, np.where(rank > mid, above, centre))
@@ -100,6 +110,10 @@ def column_median(pixels: np.ndarray, *, valid_counts: np.ndarray | None = None)
     with np.errstate(invalid="ignore", over="ignore"):
         med = 0.5 * pick(lo) + 0.5 * pick(hi)
     return np.where(n > 0, med, np.nan)
+
+
+_MEDIAN_BLOCK_BYTES = 1 << 19
+"""Size of the transposed block of columns :func:`column_median` partitions at a time."""
 
 
 class BackgroundTracker:

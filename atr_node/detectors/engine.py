@@ -84,7 +84,7 @@ def _build_tables(x: np.ndarray, valid: np.ndarray, all_valid: bool, separable: 
         thresholds = [(_float32_bound(f * med, +1), +1) for f in (2.0, 4.0)] + \
                      [(_float32_bound(f * med, -1), -1) for f in (0.6, 0.3)]
         # NaN compares false; only infinite pixels need masking out of the segments.
-        has_inf = not all_valid and bool(np.isinf(x).any())
+        check_inf = not all_valid
     zero_by_pixel = not all_valid and not separable
 
     block = max(1, _BLOCK_BYTES // (8 * max(1, x.shape[1])))
@@ -108,7 +108,7 @@ def _build_tables(x: np.ndarray, valid: np.ndarray, all_valid: bool, separable: 
             gb, agb = g_in[rows], ag_in[rows]
             with np.errstate(invalid="ignore"):
                 hits = [np.greater(xb, t) if sign > 0 else np.less(xb, t) for t, sign in thresholds]
-            if has_inf:
+            if check_inf and np.isinf(xb).any():
                 for hit in hits:
                     hit &= vb
             # |2S| = highs + lows; 2S + 2 = 2 + highs - lows (the four tests are nested).
@@ -178,9 +178,14 @@ def _score_rows(x: np.ndarray, *, first_row: int, stop_row: int, range0_m: float
     geom = window_geometry(range0_m + dr_m * np.arange(cols), dr_m=dr_m, dx_m=dx_m,
                            altitude_m=altitude_m, template=template)
     needs = set().union(*(NEEDS[d] for d in names))
-    valid = np.isfinite(x)
-    per_col = np.count_nonzero(valid, axis=0)
-    per_row = np.count_nonzero(valid, axis=1)
+    if workspace is None:
+        workspace = Workspace()
+    # Fresh memory costs a page fault per page (on a virtual machine as much as a pass over
+    # it): the mask lives in the workspace, and OpenCV counts it about 10x faster than numpy.
+    valid = np.isfinite(x, out=workspace.array("valid", x.shape, bool))
+    valid_u8 = valid.view(np.uint8)
+    per_col = cv2.reduce(valid_u8, 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).reshape(-1).astype(np.int64)
+    per_row = cv2.reduce(valid_u8, 1, cv2.REDUCE_SUM, dtype=cv2.CV_32S).reshape(-1).astype(np.int64)
     all_valid = bool((per_col == rows).all())
     # Common case: no data only in whole columns (nadir gap, beyond maximum range) and whole
     # rows (ping drop-outs): the valid mask is the outer product of a row and a column mask

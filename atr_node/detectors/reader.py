@@ -99,7 +99,9 @@ def read_scores(sat: SummedAreaTables, geom: WindowGeometry, names: tuple[str, .
     # An integer count n is at least frac * area exactly when n >= ceil(frac * area).
     need = {w: np.ceil(detectors.min_valid_fraction * a - 1e-9).astype(np.int32) for w, a in area.items()}
     rows_dec = -(-n_out // step)
-    out = {d: np.empty((rows_dec, js.size), ftype) for d in names}
+    # The maps live in the workspace (no page faults on fresh memory from tile to tile): with a
+    # caller's workspace they are valid until its next call.
+    out = {d: sat.ws.array("out " + d, (rows_dec, js.size), ftype) for d in names}
     block = max(1, _BLOCK_BYTES // (8 * (sat.cols + sat.pad.left + sat.pad.right + 1)))
     t_rows = (geom.row0, geom.row1)
     c_rows = (geom.ctx_row0, geom.ctx_row1)

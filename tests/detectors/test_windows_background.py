@@ -77,6 +77,23 @@ def test_column_median_large_tile_with_infinities(rng):
     np.testing.assert_array_equal(column_median(x), np.nanmedian(ref_in, axis=0))
 
 
+def test_column_median_by_blocks_of_columns_equals_nanmedian(rng, monkeypatch):
+    """Blocks of 1 and of 7 columns (the last one short), partly and wholly empty columns."""
+    from atr_node.detectors import background
+
+    x = rng.integers(0, 5, size=(64, 45)).astype(np.float32)
+    x[rng.random(x.shape) < 0.3] = np.nan
+    x[:, 3] = np.nan
+    x[:40, 10] = np.nan
+    ref = x.astype(np.float64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ref = np.nanmedian(ref, axis=0)
+    for cols_per_block in (1, 7):
+        monkeypatch.setattr(background, "_MEDIAN_BLOCK_BYTES", 4 * 64 * cols_per_block)
+        np.testing.assert_array_equal(column_median(x), ref)
+
+
 def test_tracker_forgets_exponentially():
     tr = BackgroundTracker(0.8)
     a = np.full((4, 3), 2.0, np.float32)
