@@ -323,12 +323,19 @@ class NodeSettings:
     """ZeroMQ endpoint to bind and publish this node's evidence deltas on; "" = do not publish."""
     exchange_peers: tuple[str, ...] = ()
     """Other nodes' exchange endpoints to subscribe to and ingest evidence deltas from."""
+    warm_up_mpx: float = 8.0
+    """Live mode: the detection worker scores a synthetic unit of this many megapixels when it
+    starts, so the first tiles up to that size find its buffers mapped (first touch of that
+    memory cost 0.3-1.6 s on the target VM). The worker then holds those buffers (about
+    70 B per pixel: ~0.65 GB at 8 Mpx), as it would after its first tile of that size. Set it
+    to the sonar's unit size; 0 = a tiny warm-up only."""
 
     def __post_init__(self) -> None:
         _check(self.queue_tiles >= 1, "node.queue_tiles", "must be >= 1")
         _check(0.05 <= self.heartbeat_s <= 1.0, "node.heartbeat_s", "must be in [0.05, 1] s (ICD: at least once a second)")
         _check(self.snapshot_every_tiles >= 1, "node.snapshot_every_tiles", "must be >= 1")
         _check(self.nav_max_gap_s > 0, "node.nav_max_gap_s", "must be > 0")
+        _check(0 <= self.warm_up_mpx <= 64, "node.warm_up_mpx", "must be in [0, 64] Mpx")
 
 
 @dataclass(frozen=True)

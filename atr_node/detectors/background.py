@@ -38,9 +38,18 @@ def column_mean(pixels: np.ndarray) -> np.ndarray:
         Mean of the valid pixels of each column; NaN for a column without any.
     """
     a = _check_pixels(pixels)
-    valid = np.isfinite(a)
-    n = np.count_nonzero(valid, axis=0)
-    total = np.where(valid, a, np.float32(0)).sum(axis=0, dtype=np.float64)
+    rows, cols = a.shape
+    n = np.zeros(cols, np.int64)
+    total = np.zeros(cols)
+    # Rows a block at a time (the block's mask and zero-filled copy stay in cache); OpenCV sums
+    # the columns in float64, several times faster than numpy's column reductions.
+    step = max(1, _MEDIAN_BLOCK_BYTES // (4 * max(cols, 1)))
+    for r0 in range(0, rows if cols else 0, step):
+        xb = a[r0:r0 + step]
+        vb = np.isfinite(xb)
+        n += cv2.reduce(vb.view(np.uint8), 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).reshape(-1)
+        clean = xb if vb.all() else np.where(vb, xb, np.float32(0))
+        total += cv2.reduce(clean, 0, cv2.REDUCE_SUM, dtype=cv2.CV_64F).reshape(-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(n > 0, total / np.maximum(n, 1), np.nan)
 

@@ -55,11 +55,18 @@ class Workspace:
         self._arrays: dict[str, np.ndarray] = {}
 
     def array(self, name: str, shape: tuple[int, ...], dtype: np.dtype | type) -> np.ndarray:
-        """An uninitialised array ``name`` of this shape and dtype, reused when it matches."""
-        a = self._arrays.get(name)
-        if a is None or a.shape != shape or a.dtype != np.dtype(dtype):
-            a = self._arrays[name] = np.empty(shape, dtype)
-        return a
+        """An uninitialised C-contiguous array ``name`` of this shape and dtype.
+
+        It is a view into a byte buffer kept under ``name`` and reused whenever it is large
+        enough, so units of slightly different shapes (a leg's first and last, margins) do not
+        reallocate; a buffer that must grow takes 1/8 more than asked for.
+        """
+        dt = np.dtype(dtype)
+        nbytes = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+        buf = self._arrays.get(name)
+        if buf is None or buf.size < nbytes:
+            buf = self._arrays[name] = np.empty(nbytes + nbytes // 8, np.uint8)
+        return buf[:nbytes].view(dt).reshape(shape)
 
     def clear(self) -> None:
         """Release every buffer."""

@@ -91,30 +91,46 @@ class LegLayer:
         return [k for k, n in self.touched.items() if self.n_obs - n >= after_obs]
 
 
-def layer_terms(p: np.ndarray, eps: float) -> tuple[np.ndarray, np.ndarray, int, np.ndarray]:
+def layer_terms(p: np.ndarray, eps: float, *, per_detector: bool = True
+                ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray | None]:
     """Log terms one leg adds, from its layer ``p`` (K, n_det, 2, nn) (SPEC sections 6-7).
 
     Per (detector, cell): T evidence ``log1p(-c)`` where a detection's gate reached the cell,
     else notT evidence ``log1p(-Pd)`` where the detector covered it, else nothing; masses
     clamped to ``1 - eps`` (SPEC section 6).
 
+    Parameters
+    ----------
+    p : ndarray (K, n_det, 2, nn)
+        Layer values, -1 meaning no evidence.
+    eps : float
+        Clamp: masses above ``1 - eps`` count as ``1 - eps``.
+    per_detector : bool
+        Also return the per-detector terms (diagnostics; the read-out paths do not need
+        them).
+
     Returns
     -------
     (d_lt, d_ln, n_clamped, per_det)
         (K, nn) additions to L_T and L_N, the number of masses clamped, and the
-        per-detector terms (K, n_det, 2, nn).
+        per-detector terms (K, n_det, 2, nn), or None.
     """
     c, q = p[:, :, 0], p[:, :, 1]
     has_t = c >= 0.0
     has_n = (q >= 0.0) & ~has_t  # the gate excludes notT: T wins for this (leg, detector)
     top = 1.0 - eps
     n_clamped = int(np.count_nonzero(has_t & (c > top)) + np.count_nonzero(has_n & (q > top)))
-    per_det = np.empty(p.shape)
-    # |x| keeps the -1 of "no evidence" out of log1p's pole; those terms are replaced by 0
-    per_det[:, :, 0] = np.where(has_t, np.log1p(-np.minimum(np.abs(c), top)), 0.0)
-    per_det[:, :, 1] = np.where(has_n, np.log1p(-np.minimum(np.abs(q), top)), 0.0)
-    d_lt, d_ln = per_det[:, 0, 0].copy(), per_det[:, 0, 1].copy()
+    terms = np.zeros(p.shape)
+    # log1p only where there is evidence (T evidence is rare: near detections); elsewhere the
+    # term is 0. Element for element the values of where(has, log1p(-min(|m|, top)), 0)
+    # (|m| keeps a -0.0 mass giving the same signed zero as ever)
+    for which, m, has in ((0, c, has_t), (1, q, has_n)):
+        if has.all():
+            terms[:, :, which] = np.log1p(-np.minimum(np.abs(m), top))  # |m|: as below (-0.0)
+        elif has.any():
+            terms[:, :, which][has] = np.log1p(-np.minimum(np.abs(m[has]), top))
+    d_lt, d_ln = terms[:, 0, 0].copy(), terms[:, 0, 1].copy()
     for d in range(1, p.shape[1]):  # fixed detector order: the same sum bit for bit everywhere
-        d_lt += per_det[:, d, 0]
-        d_ln += per_det[:, d, 1]
-    return d_lt, d_ln, n_clamped, per_det
+        d_lt += terms[:, d, 0]
+        d_ln += terms[:, d, 1]
+    return d_lt, d_ln, n_clamped, terms if per_detector else None

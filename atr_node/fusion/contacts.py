@@ -117,10 +117,17 @@ class ContactTracker:
         """Last message of every contact ever published (final states)."""
         self._stamp = 0
         self._cells: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        self._groups: dict[bytes, tuple[int, np.ndarray]] = {}
+        """Leader grouping of a region's detections, by their positions and confidences (see _split)."""
 
     def _refresh(self, grid: EvidenceGrid) -> None:
         keys = grid.changed_since(self._stamp)
         self._stamp = grid.stamp
+        # chunks without T evidence have Bel(T) = 0: dropped without evaluating the layer terms
+        with_t = grid.has_t_evidence(keys)
+        for key in (k for k, w in zip(keys, with_t) if not w):
+            self._cells.pop(key, None)
+        keys = [k for k, w in zip(keys, with_t) if w]
         if not keys:
             return
         acc = grid.chunk_accumulators(keys)
@@ -178,24 +185,31 @@ class ContactTracker:
                 comp_id[j] = cid
                 used.add(cid)
         out: list[Contact] = []
+        # detections of each component: one stable sort, not a scan of all detections per
+        # component (same members, same order)
+        d_order = np.argsort(det_lab, kind="stable")
+        d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1))
         for j in range(n_comp):
             p = peak[j]
             if j not in comp_id and bel[p] < self.fusion.report_bel:
                 continue
             cid = comp_id.get(j)
             state = "update" if cid is not None else "new"
-            if cid is None:
-                cid, self.next_id = self.next_id, self.next_id + 1
             legs = tuple(grid.legs_at(int(iy[p]), int(ix[p])))
-            dets = [grid.detections[i] for i in np.flatnonzero(det_lab == j)]
+            dets = [grid.detections[i] for i in d_order[d_bounds[j]:d_bounds[j + 1]]]
+            fields = dict(east_m=float(ce[j]), north_m=float(cn[j]), sigma_m=float(sigma[j]), bel=float(bel[p]),
+                          pl=float(1.0 - mn[p]), m_theta=float(mth[p]), looks=len(legs), detections=len(dets),
+                          detectors=tuple(d for d in grid.detectors if any(r.detector == d for r in dets)),
+                          legs=legs)
+            if state == "update":
+                old = self.live[cid]
+                # lat/lon are a function of (east, north): equal fields mean equal content
+                if all(getattr(old, k) == v for k, v in fields.items()):
+                    continue
+            else:
+                cid, self.next_id = self.next_id, self.next_id + 1
             lat, lon = self.frame.to_latlon(ce[j], cn[j])
-            c = Contact(id=cid, state=state, t=float(t), lat_deg=float(lat), lon_deg=float(lon),
-                        east_m=float(ce[j]), north_m=float(cn[j]), sigma_m=float(sigma[j]), bel=float(bel[p]),
-                        pl=float(1.0 - mn[p]), m_theta=float(mth[p]), looks=len(legs), detections=len(dets),
-                        detectors=tuple(d for d in grid.detectors if any(r.detector == d for r in dets)),
-                        legs=legs)
-            if state == "update" and c.same_content(self.live[cid]):
-                continue
+            c = Contact(id=cid, state=state, t=float(t), lat_deg=float(lat), lon_deg=float(lon), **fields)
             self.live[cid] = c
             out.append(c)
         for cid in sorted(set(self.live) - set(comp_id.values()) - {c.id for c in out}):
@@ -226,12 +240,16 @@ class ContactTracker:
         dn = np.array([r.north_m for r in dets])
         conf = np.array([max(r.confidence, 1e-12) for r in dets])
         e, n = grid.cell_centre(iy, ix)
+        kept: dict[bytes, tuple[int, np.ndarray]] = {}  # the groupings of today's regions only
         for j in np.unique(det_reg[det_reg >= 0]):
             members = np.flatnonzero(det_reg == j)
             if members.size < 2:
                 continue
+            # leader_groups is deterministic: a region whose detections did not change (most
+            # of them, from one update to the next) reuses its grouping
             xy = np.column_stack([de[members], dn[members]])
-            ng, g = leader_groups(xy, conf[members], radius_m=self.gate_m)
+            mkey = xy.tobytes() + conf[members].tobytes()
+            ng, g = kept[mkey] = self._groups.get(mkey) or leader_groups(xy, conf[members], radius_m=self.gate_m)
             if ng < 2:
                 continue
             wsum = np.bincount(g, weights=conf[members], minlength=ng)
@@ -243,6 +261,7 @@ class ContactTracker:
             lab[cells] = new_labels[nearest]
             det_lab[members] = new_labels[g]
             n_comp += ng - 1
+        self._groups = kept
         return lab, n_comp, det_lab
 
     @staticmethod
@@ -270,4 +289,4 @@ class ContactTracker:
         self.next_id = int(state["next_id"])
         self.live = {int(m["id"]): Contact.from_message(m) for m in state["live"]}
         self.history = {int(m["id"]): Contact.from_message(m) for m in state["history"]}
-        self._stamp, self._cells = 0, {}
+        self._stamp, self._cells, self._groups = 0, {}, {}

@@ -32,13 +32,15 @@ import numpy as np
 from ..config import DETECTOR_NAMES, FusionSettings
 from ..errors import FusionError
 from .chunks import ChunkStack, Key, LegLayer, layer_terms
+from .deposit import PdReducer
 from .mass import TNMasses, closed_form
-from .observation import DetectionRecord, Observation, association_gate_m, gate_cells, pixel_cells
+from .observation import DetectionRecord, Observation, association_gate_m, gate_cells
 
 __all__ = ["DetectionRecord", "EvidenceGrid", "association_gate_m"]
 
 BLOCK_PIXELS = 1 << 20
-"""Pixels georeferenced at once (bounds transient memory to a few tens of MB)."""
+"""Pixels per block of rows: chunks are looked up (and allocated, in chunk order) per block;
+within a block :class:`~atr_node.fusion.deposit.PdReducer` works in smaller sub-blocks."""
 
 
 class EvidenceGrid:
@@ -85,6 +87,7 @@ class EvidenceGrid:
         self.stamp = 0
         self.changed: dict[tuple[int, int], int] = {}
         """chunk -> stamp of its last change (contact extraction recomputes only those)."""
+        self._reducer = PdReducer(self.cell_m)
 
     # ------------------------------------------------------------------ indexing
     def cell_of(self, east_m: np.ndarray | float, north_m: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
@@ -165,36 +168,53 @@ class EvidenceGrid:
         self.stamp += 1
         layer = self._layer(obs.leg, obs.t)
         layer.n_obs += 1
+        self._deposit_pd(layer, obs, det_idx)
+        self._deposit_detections(layer, obs, det_idx)
+        self.n_observations += 1
+        self._commit(obs.leg, layer, layer.stale(self.fusion.commit_after_obs))
+
+    def _deposit_pd(self, layer: LegLayer, obs: Observation, det_idx: list[int]) -> None:
+        """notT side of an observation: per (detector, cell) the maximum Pd over the cell's
+        covered pixels, into the leg's layer (SPEC section 7). Each block of rows is reduced
+        to its cells first (:class:`~atr_node.fusion.deposit.PdReducer`, bit-exact), so
+        chunk lookup and the scatter into the layer work on cells, not pixels."""
         rows, cols = obs.shape
-        any_cov = np.zeros((rows, cols), dtype=bool)
-        for d in obs.detectors:
-            any_cov |= d.covered
-        stride = len(self.detectors) * 2 * self.nn
+        covs = [d.covered for d in obs.detectors]
+        if not covs:
+            return
+        any_cov = covs[0].copy()
+        for c in covs[1:]:
+            any_cov |= c
         used_cols = np.flatnonzero(any_cov.any(axis=0))
-        if used_cols.size:
-            c0, c1 = int(used_cols[0]), int(used_cols[-1]) + 1  # skip never-covered near/far range
-            block = max(1, BLOCK_PIXELS // (c1 - c0))
-            for r0 in range(0, rows, block):
-                sl = slice(r0, min(rows, r0 + block))
-                sel = any_cov[sl, c0:c1]
-                if not sel.any():
-                    continue
-                iy, ix = pixel_cells(obs.geometry, sl, cell_m=self.cell_m, cols=slice(c0, c1))
-                base = self._flat(layer.chunks, iy, ix, stride, layer, valid=sel)
-                flat = layer.chunks.arr.reshape(-1)
-                for d, k in zip(obs.detectors, det_idx):
-                    # max over the pixels of a cell: one Pd per (leg, detector, cell), free of
-                    # the tile cut; uncovered pixels carry -1, a no-op under the maximum
-                    vals = np.where(d.covered[sl, c0:c1], d.pd[None, c0:c1], -1.0)
-                    np.maximum.at(flat, (base + (2 * k + 1) * self.nn).ravel(), vals.ravel())
+        if not used_cols.size:
+            return
+        c0, c1 = int(used_cols[0]), int(used_cols[-1]) + 1  # skip never-covered near/far range
+        stride = len(self.detectors) * 2 * self.nn
+        pds = [d.pd for d in obs.detectors]
+        block = max(1, BLOCK_PIXELS // (c1 - c0))
+        for r0 in range(0, rows, block):
+            sl = slice(r0, min(rows, r0 + block))
+            if not any_cov[sl, c0:c1].any():
+                continue
+            # cells with a covered pixel of some detector: exactly the cells (so the chunks,
+            # allocated per block in chunk order) a per-pixel deposit touches
+            iy, ix, vmax = self._reducer.reduce(obs.geometry, covs, pds, sl, slice(c0, c1))
+            base = self._flat(layer.chunks, iy, ix, stride, layer)
+            flat = layer.chunks.arr.reshape(-1)
+            for j, k in enumerate(det_idx):
+                v = vmax[j]
+                hit = np.flatnonzero(v >= 0.0)  # -1: this detector covered no pixel there
+                np.maximum.at(flat, base[hit] + (2 * k + 1) * self.nn, v[hit])
+
+    def _deposit_detections(self, layer: LegLayer, obs: Observation, det_idx: list[int]) -> None:
+        """T side of an observation: each detection's confidence over its gate, the maximum
+        per (detector, cell), and the georeferenced detection records (SPEC section 7)."""
         for d, k in zip(obs.detectors, det_idx):
             for det in d.detections:
                 e, n = obs.geometry.world(det.row, det.col)
                 self._deposit_t(layer, k, float(e), float(n), det.confidence)
                 self.detections.append(DetectionRecord(obs.leg, d.detector, float(e), float(n), float(obs.t),
                                                        float(det.confidence), float(det.gamma)))
-        self.n_observations += 1
-        self._commit(obs.leg, layer, layer.stale(self.fusion.commit_after_obs))
 
     def _deposit_t(self, layer: LegLayer, k: int, east_m: float, north_m: float, confidence: float) -> None:
         iy, ix = gate_cells(east_m, north_m, gate_m=self.gate_m, cell_m=self.cell_m)
@@ -247,7 +267,7 @@ class EvidenceGrid:
             return
         self.stamp += 1
         p = layer.chunks.gather(keys)
-        d_lt, d_ln, n_cl, per_det = layer_terms(p, self.fusion.eps)
+        d_lt, d_ln, n_cl, per_det = layer_terms(p, self.fusion.eps, per_detector=self._diag is not None)
         self.n_clamped += n_cl
         slots = np.array([self._ln.get(k) for k in keys], dtype=np.int64)
         self._ln.arr[slots] += d_ln
@@ -318,9 +338,23 @@ class EvidenceGrid:
                 idx = [(i, layer.chunks.slot[k]) for i, k in enumerate(keys) if k in layer.chunks.slot]
                 if idx:
                     rows, slots = (np.array(v, dtype=np.int64) for v in zip(*idx))
-                    d_lt, d_ln, _, _ = layer_terms(layer.chunks.arr[slots], self.fusion.eps)
+                    d_lt, d_ln, _, _ = layer_terms(layer.chunks.arr[slots], self.fusion.eps, per_detector=False)
                     out[rows, 0] += d_lt
                     out[rows, 1] += d_ln
+        return out
+
+    def has_t_evidence(self, keys: list[Key]) -> list[bool]:
+        """Per chunk, whether it may hold T evidence (committed ``L_T``, or a T mass in an
+        open layer): a chunk without is Bel(T) = 0 everywhere, no need to evaluate it."""
+        out = []
+        for key in keys:
+            found = key in self._lt.slot
+            for layer in self.open.values():
+                if found:
+                    break
+                s = layer.chunks.slot.get(key)
+                found = s is not None and bool((layer.chunks.arr[s, :, 0] >= 0.0).any())
+            out.append(found)
         return out
 
     def detector_accumulators(self, keys: list[Key]) -> np.ndarray:

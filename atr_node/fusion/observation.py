@@ -160,7 +160,14 @@ def pixel_cells(geometry: TileGeometry, rows: slice, *, cell_m: float,
 
     ``world(i, j) = p_i + r_j u_i`` (``atr_node.geo.georef``), then ``floor(x / cell_m)``.
     """
+    # in place, one temporary per axis: r * u + p is the same float as p + r * u (IEEE
+    # addition commutes), so the cells are bit for bit those of the direct expression
     r = geometry.ranges_m[None, cols]
-    e = geometry.east_m[rows, None] + r * geometry.ue[rows, None]
-    n = geometry.north_m[rows, None] + r * geometry.un[rows, None]
-    return np.floor(n / cell_m).astype(np.int64), np.floor(e / cell_m).astype(np.int64)
+    out = []
+    for pos, u in ((geometry.north_m, geometry.un), (geometry.east_m, geometry.ue)):
+        x = r * u[rows, None]
+        x += pos[rows, None]
+        x /= cell_m
+        np.floor(x, out=x)
+        out.append(x.astype(np.int64))
+    return out[0], out[1]

@@ -46,7 +46,9 @@ class DetectResult:
     shape: tuple[int, int]
     """(core rows, cols)."""
     covered_bits: dict[str, np.ndarray]
-    """Per detector, the core's covered mask (score not NaN) as ``np.packbits``."""
+    """Per detector, the core's covered mask (score not NaN) as ``np.packbits``. Detectors
+    whose masks are equal share one array (MF and Z use the same windows), which the result's
+    pickle then carries once."""
     detections: dict[str, list[Detection]]
     """Per detector, detections with rows relative to the core."""
     seconds: float
@@ -54,8 +56,10 @@ class DetectResult:
     """Detections at the job's sweep thresholds (evaluation only)."""
 
     def covered(self, detector: str) -> np.ndarray:
+        """The covered mask of ``detector``: a new bool array, shape (core rows, cols)."""
         rows, cols = self.shape
-        return np.unpackbits(self.covered_bits[detector], count=rows * cols).reshape(rows, cols).astype(bool)
+        # unpackbits gives 0 or 1 only: a bool view of its fresh array, no copy
+        return np.unpackbits(self.covered_bits[detector], count=rows * cols).reshape(rows, cols).view(bool)
 
 
 def detect(job: DetectJob) -> DetectResult:
@@ -77,7 +81,8 @@ def detect(job: DetectJob) -> DetectResult:
 
     for d in job.enabled:
         s = scores[d]
-        covered[d] = np.packbits(~np.isnan(s))
+        bits = np.packbits(~np.isnan(s))
+        covered[d] = next((b for b in covered.values() if np.array_equal(b, bits)), bits)
         dets[d] = extract(s, d, job.taus[d])
         if sweep is not None:
             sweep[d] = {float(tau): extract(s, d, tau) for tau in job.sweep.get(d, ())}

@@ -9,6 +9,10 @@
          --> fuse (EvidenceGrid: confidence from the model, missed detections from Pd(r))
          --> ContactTracker --> contact messages (new / update / withdrawn)
 
+Unit pixels reach the worker through shared memory (``pixelshm.py``), both processes run with
+small pages and a live node's worker warms up at full tile size (``warmup.py``); each unit's
+stage times are kept in ``stats.stages`` (``timing.py``, ``tools/latency_breakdown.py``).
+
 The pipeline is a deterministic function of the record sequence: units are fused in the
 order they were formed, whatever the worker's timing, and the on-line calibration switch
 happens at a tile count. Two modes:
@@ -46,9 +50,12 @@ from ..geo import MissionFrame, tile_geometry
 from ..io.atrlog import LogRecord
 from ..records.nav import NavFix, NavTrack
 from ..records.tile import Tile
-from .detect import DetectJob, DetectResult, detect, warm_up, worker_init
+from .detect import DetectJob, DetectResult, detect, warm_up
 from .navmerge import NavMerger
 from .strip import StripAssembler, StripUnit
+from .pixelshm import SlotChannel
+from .timing import UnitTiming
+from .warmup import keep_small_pages, node_worker_init, warm_up_worker
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +77,8 @@ class PipelineStats:
     pixels: int = 0
     rejections: Counter = field(default_factory=Counter)
     latency_s: deque = field(default_factory=lambda: deque(maxlen=2000))
+    stages: deque = field(default_factory=lambda: deque(maxlen=2000))
+    """Per-unit stage times (:class:`~atr_node.node.timing.UnitTiming`), the last 2000."""
 
     def latency_ms(self) -> tuple[float, float]:
         # tuple() copies the deque in one C call under the GIL: safe while the pipeline thread
@@ -132,6 +141,8 @@ class Pipeline:
         """Per (leg, side): trackers of the background b(j) and the median m(j)."""
         self._arrival: dict[tuple[str, int], float] = {}
         self._inflight: deque[tuple[StripUnit, PerformanceModel, Future | DetectResult]] = deque()
+        self._timing: dict[int, UnitTiming] = {}
+        """id(unit) -> its stage times, from submit to fuse."""
         self.sweep: dict[str, tuple[float, ...]] | None = None
         """Evaluation: extra thresholds per detector whose detections are kept too."""
         self.on_fused: Callable[[StripUnit, PerformanceModel, DetectResult], None] | None = None
@@ -140,12 +151,27 @@ class Pipeline:
         self._strip_leg: int | None = None
         self.degraded = False
         self.leg: int | None = None
+        # the node allocates tens of MB per tile: huge-page advice makes each fresh page fault
+        # compact memory first, which doubled the node's time on the target VM (warmup.py)
+        keep_small_pages()
         self._pool: ProcessPoolExecutor | None = None
+        self.warming: Future | None = None
+        """The worker's warm-up (done when the worker is ready for full-size tiles)."""
+        self.channel: SlotChannel | None = None
+        """Jobs to the worker: unit pixels through shared memory (pixelshm.py: 0.1-0.2 s per
+        8-Mpx unit less than through the pipe)."""
         if workers:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
-                                             initializer=worker_init)
-            # start the worker and import the detectors there now, not on the first tile
-            self._pool.submit(warm_up)
+                                             initializer=node_worker_init)
+            self.channel = SlotChannel(self._pool)
+            # start the worker and import the detectors there now, not on the first tile; a live
+            # node also maps the detectors' buffers for tiles of node.warm_up_mpx (the first
+            # touch of that memory would otherwise add ~1.5 s to the first tiles' latency)
+            if mode == "live" and settings.node.warm_up_mpx > 0:
+                self.warming = self._pool.submit(warm_up_worker, settings.sensor, settings.template,
+                                                 settings.detectors, self.enabled, settings.node.warm_up_mpx)
+            else:
+                self.warming = self._pool.submit(warm_up)
 
     # -- input ------------------------------------------------------------------------------
     def feed(self, rec: LogRecord) -> None:
@@ -206,6 +232,9 @@ class Pipeline:
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+        if self.channel is not None:
+            self.channel.close()
+            self.channel = None
         if self.online is not None:
             self.online.close()
 
@@ -267,6 +296,8 @@ class Pipeline:
         return self.model
 
     def _submit(self, unit: StripUnit) -> None:
+        timing = UnitTiming(unit.side, unit.seq, unit.core_rows, self._arrival.get((unit.side, unit.seq)),
+                            time.monotonic())
         limit = self.settings.node.queue_tiles
         if self.mode == "live":
             depth = len(self._inflight)
@@ -308,10 +339,17 @@ class Pipeline:
                         self.settings.template, det_settings, self.sweep)
         self.stats.units += 1
         self.stats.pixels += unit.core_rows * unit.pixels.shape[1]
+        self._timing[id(unit)] = timing
         if self._pool is None:
-            self._fuse(unit, model, detect(job))
+            timing.queued = time.monotonic()
+            res = detect(job)
+            timing.mark_done()
+            self._fuse(unit, model, res)
             return
-        self._inflight.append((unit, model, self._pool.submit(detect, job)))
+        fut = self.channel.submit(job)
+        timing.queued = time.monotonic()
+        fut.add_done_callback(timing.mark_done)
+        self._inflight.append((unit, model, fut))
         if self.mode == "replay":
             while len(self._inflight) > limit:
                 self._collect_one()
@@ -319,7 +357,10 @@ class Pipeline:
 
     def _collect_one(self) -> None:
         unit, model, fut = self._inflight.popleft()
-        self._fuse(unit, model, fut.result())
+        res = fut.result()
+        if self.channel is not None:
+            self.channel.done(fut)
+        self._fuse(unit, model, res)
 
     def _collect(self, *, block: bool) -> None:
         while self._inflight and (block or self._inflight[0][2].done()):
@@ -327,6 +368,8 @@ class Pipeline:
 
     def _fuse(self, unit: StripUnit, model: PerformanceModel, res: DetectResult) -> None:
         t0 = time.perf_counter()
+        timing = self._timing.pop(id(unit), None) or UnitTiming(unit.side, unit.seq, unit.core_rows, None, math.nan)
+        timing.fuse_start, timing.detect_s = time.monotonic(), res.seconds
         self.stats.detect_s += res.seconds
         core = unit.core_tile()
         geometry = tile_geometry(core, self.frame)
@@ -339,12 +382,16 @@ class Pipeline:
             observations.append(DetectorObservation(d, res.covered(d), pd, dets))
         t = float(unit.ping_time[unit.core][-1])
         self._last_t = max(self._last_t, t)
+        t1 = time.monotonic()
         try:
             self.grid.add_observation(Observation(unit.leg, t, geometry, tuple(observations)))
         except AtrError as exc:  # e.g. a leg number reused after the leg was closed
             self.stats.rejections[f"fusion: {type(exc).__name__}"] += 1
             log.error("leg %d %s: evidence rejected: %s", unit.leg, unit.side, exc)
+        t2 = time.monotonic()
         self._update_contacts(t)
+        t3 = time.monotonic()
+        timing.deposit_s, timing.contacts_s = t2 - t1, t3 - t2
         if self.on_fused is not None:
             self.on_fused(unit, model, res)
         # latency (ICD heartbeat): from a tile's arrival to the evidence of the unit its arrival
@@ -355,6 +402,8 @@ class Pipeline:
         for seq in unit.completed:
             self._arrival.pop((unit.side, seq), None)
             self.stats.tiles_done += 1
+        timing.fused = time.monotonic()
+        self.stats.stages.append(timing)
         self.stats.fuse_s += time.perf_counter() - t0
 
     def _update_contacts(self, t: float) -> None:

@@ -105,3 +105,51 @@ def test_and_or_baselines(frame):
     assert sum(c.detections for c in ors) == len(grid.detections)
     three = and_contacts(grid.detections, gate_m=3.0, detectors=("lac", "smf"))
     assert all(set(c.detectors) == {"lac", "smf"} for c in three)
+
+
+def test_cached_extraction_equals_a_full_recompute_every_update(frame):
+    """The tracker reuses per-chunk cells and per-region detection groupings between updates;
+    a tracker that drops every cache before each update (as after a restore) must publish
+    exactly the same messages, in the same order, with the same ids."""
+    fusion = FusionSettings()
+    grid = EvidenceGrid(fusion, gate_m=3.0)
+    cached, fresh = ContactTracker(fusion, frame, gate_m=3.0), ContactTracker(fusion, frame, gate_m=3.0)
+    obs = mission_observations(frame, tiles_per_leg=3, rows=600)
+    # two more objects 4 m apart: one region holding two detection groups (the split path)
+    from .conftest import observe, track_geometry
+    g = track_geometry(frame, east0_m=0.0, north0_m=60.0, heading_deg=0.0, rows=300, cols=700, leg=9)
+    pd = np.full(700, 0.5)
+    hits = [(100, 400, 0.9), (102, 401, 0.8), (100, 440, 0.85)]
+    obs.append(observe(g, 9, 9000.0, {d: (None, pd, hits) for d in DETS}))
+    a, b = [], []
+    for o in obs:
+        grid.add_observation(o)
+        a += [c.to_message() for c in cached.update(grid, o.t)]
+        fresh.restore(fresh.state())  # drops the cell cache and the groupings
+        b += [c.to_message() for c in fresh.update(grid, o.t)]
+    grid.close_all()
+    a += [c.to_message() for c in cached.update(grid, 1e4)]
+    fresh.restore(fresh.state())
+    b += [c.to_message() for c in fresh.update(grid, 1e4)]
+    assert a == b and len(a) > len(TARGETS)
+    assert len(cached._groups) > 0  # the cache was used
+
+
+def test_chunks_flagged_without_t_evidence_have_no_t_evidence(frame):
+    """The tracker skips chunks ``has_t_evidence`` rules out: they must have L_T = 0 (open
+    legs included), and chunks near detections must be flagged."""
+    grid = EvidenceGrid(FusionSettings(), gate_m=3.0)
+    obs = mission_observations(frame, tiles_per_leg=2)
+    for o in obs[:-1]:  # the last leg stays open: its layer counts too
+        grid.add_observation(o)
+    keys = grid.chunk_keys()
+    flags = grid.has_t_evidence(keys)
+    acc = grid.chunk_accumulators(keys)
+    assert any(flags) and not all(flags)
+    for f, a in zip(flags, acc):
+        if not f:
+            assert not (a[0] != 0.0).any()
+    for r in grid.detections:
+        iy, ix = grid.cell_of(r.east_m, r.north_m)
+        key = (int(iy) // grid.n, int(ix) // grid.n)
+        assert flags[keys.index(key)]

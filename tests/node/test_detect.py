@@ -1,0 +1,89 @@
+"""The detect stage (node worker): coverage bits and detections of a unit, checked against a
+direct score_strip + isnan + find_detections of the same core, and across a pickle (the
+process boundary the result crosses)."""
+
+from __future__ import annotations
+
+import pickle
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from atr_node.config import DETECTOR_NAMES, DetectorSettings, TemplateSettings
+from atr_node.detectors import column_mean, column_median, find_detections, score_strip
+from atr_node.node.detect import DetectJob, detect
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
+from bench_detectors import GEO, TAU, make_tile  # noqa: E402
+
+T, S = TemplateSettings(), DetectorSettings()
+CORE = (20, 220)
+
+
+@pytest.fixture(scope="module")
+def job() -> DetectJob:
+    img, _ = make_tile(240, 600, 9, T)
+    img[100:130, 400:460] = np.nan  # a hole of no data inside the core: coverage differs by window
+    core = img[CORE[0]:CORE[1]]
+    return DetectJob(7, img, CORE, GEO["range0_m"], GEO["dr_m"], GEO["dx_m"], GEO["altitude_m"],
+                     column_mean(core), column_median(core), dict(TAU), DETECTOR_NAMES, T, S,
+                     sweep={"mf": (0.5, 2.0), "z": (1.0,)})
+
+
+@pytest.fixture(scope="module")
+def direct(job) -> dict[str, np.ndarray]:
+    return score_strip(job.pixels, core_rows=job.core, range0_m=job.range0_m, dr_m=job.dr_m, dx_m=job.dx_m,
+                       altitude_m=job.altitude_m, template=T, detectors=S, background=job.background,
+                       median=job.median)
+
+
+def extract(score: np.ndarray, d: str, tau: float):
+    return find_detections(score, tau, detector=d, range0_m=GEO["range0_m"], dr_m=GEO["dr_m"], dx_m=GEO["dx_m"],
+                           min_extent_m=S.min_extent_m, max_extent_m=S.max_extent_m)
+
+
+def test_coverage_and_detections_equal_the_direct_computation(job, direct):
+    res = detect(job)
+    assert res.key == 7 and res.shape == (CORE[1] - CORE[0], 600)
+    for d in DETECTOR_NAMES:
+        cov = res.covered(d)
+        assert cov.dtype == np.bool_ and cov.shape == res.shape
+        assert np.array_equal(cov, ~np.isnan(direct[d])), d
+        assert res.detections[d] == extract(direct[d], d, TAU[d]), d
+        assert res.detections[d], d  # the planted targets
+    assert res.sweep is not None
+    assert res.sweep["mf"] == {0.5: extract(direct["mf"], "mf", 0.5), 2.0: extract(direct["mf"], "mf", 2.0)}
+    assert res.sweep["z"] == {1.0: extract(direct["z"], "z", 1.0)}
+    assert res.sweep["lac"] == {} and res.sweep["smf"] == {}
+
+
+def test_equal_coverages_share_one_array_and_cross_a_pickle_intact(job, direct):
+    res = detect(job)
+    nan = {d: np.isnan(direct[d]) for d in DETECTOR_NAMES}
+    # the hole and the nadir gap make some coverages differ; MF and Z share their windows
+    assert not np.array_equal(nan["mf"], nan["smf"])
+    for a in DETECTOR_NAMES:
+        for b in DETECTOR_NAMES:
+            assert (res.covered_bits[a] is res.covered_bits[b]) == np.array_equal(nan[a], nan[b]), (a, b)
+    back = pickle.loads(pickle.dumps(res))
+    separate = {d: res.covered_bits[d].copy() for d in DETECTOR_NAMES}
+    assert len(pickle.dumps(res.covered_bits)) < len(pickle.dumps(separate))
+    for d in DETECTOR_NAMES:
+        assert np.array_equal(back.covered(d), res.covered(d))
+        assert back.detections[d] == res.detections[d]
+
+
+def test_covered_is_a_new_writable_array_each_call(job):
+    res = detect(job)
+    a = res.covered("mf")
+    a[:] = False
+    assert res.covered("mf").any() and res.covered("z").any()
+
+
+def test_same_job_same_result(job):
+    a, b = detect(job), detect(job)
+    for d in DETECTOR_NAMES:
+        assert np.array_equal(a.covered_bits[d], b.covered_bits[d])
+        assert a.detections[d] == b.detections[d]

@@ -1,0 +1,28 @@
+"""Smoke run of tools/latency_breakdown.py: the stage times of every unit add up to its latency."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+from atr_node.node.timing import STAGES
+
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "latency_breakdown.py"
+
+
+def test_latency_breakdown_quick_stages_add_up(tmp_path):
+    out = tmp_path / "stages.json"
+    res = subprocess.run([sys.executable, str(TOOL), "--quick", "--interval-s", "0.3", "--warm-up-s", "0.5",
+                          "--json", str(out)], capture_output=True, text=True, timeout=240)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "median" in res.stdout and "heartbeat latency" in res.stdout
+    units = json.loads(out.read_text())
+    assert len(units) >= 4
+    parts = [k for k in STAGES if k != "total"]
+    for u in units:
+        assert all(u[k] >= -1e-9 for k in parts if k != "other_fuse")
+        assert math.isclose(sum(u[k] for k in parts), u["total"], rel_tol=0, abs_tol=1e-9)
+        assert u["worker"] >= u["detect_s"] - 1e-3  # detection happens inside the worker stage
