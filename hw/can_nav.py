@@ -15,6 +15,11 @@ arrival clock. Encoders return ``(arbitration_id, data, is_extended)`` ready for
 ``can.Message`` or an ``.atrlog`` record; they raise :class:`CanCodecError` naming the signal
 and its range when a value does not fit. The decoder never raises on bus input: frames that
 are not in the DBC (a shared NMEA 2000 bus, say) are counted as ``unknown``.
+
+Decoding per frame: cantools parses the DBC once, and :func:`compile_message` turns each of its
+messages into a :class:`FastMessage` that unpacks the bits directly and returns exactly what
+cantools' ``Message.decode`` returns (tested on every message and random payloads); frames it
+does not cover (another length, data not ``bytes``, an extended flag) go through cantools.
 """
 
 from __future__ import annotations
@@ -27,10 +32,12 @@ from pathlib import Path
 from typing import Any
 
 import cantools
-from cantools.database.can import Database
+from cantools.database.can import Database, Message
+from cantools.database.conversion import (IdentityConversion, LinearConversion, LinearIntegerConversion,
+                                          NamedSignalConversion)
 from cantools.database.namedsignalvalue import NamedSignalValue
 
-from atr_node.records.nav import NavFix
+from atr_node.records.nav import NavFix, make_fix
 
 from .errors import CanCodecError, LinkSpecError
 
@@ -120,6 +127,83 @@ class LegChange:
     source: str = "can:ATR_MissionLeg"
 
 
+class FastMessage:
+    """A DBC message decoded by direct bit unpacking, built from cantools' description of it.
+
+    ``decode(data)`` returns exactly what ``message.decode(data, decode_choices=True,
+    scaling=True)`` returns for ``len(data) == message.length`` (same keys, values and types,
+    the same ``NamedSignalValue`` objects for choices), several times cheaper: cantools stays
+    the source of truth, this only skips its generic per-frame machinery. Built by
+    :func:`compile_message`, which declines the messages it cannot reproduce exactly.
+
+    ``signals`` holds, per signal, ``(name, start, mask, sign, scaled, scale, offset,
+    choices)``; ``decode`` is a function generated from them once (straight-line code, no
+    loop over signals: a third of the cost of an interpreted loop).
+    """
+
+    __slots__ = ("message", "frame_id", "length", "signals", "decode")
+
+    def __init__(self, message: Message, signals: list[tuple[Any, ...]]) -> None:
+        self.message = message
+        self.frame_id = int(message.frame_id)  # a plain attribute: cantools' is a property
+        self.length = int(message.length)
+        self.signals = tuple(signals)
+        self.decode = _generate(self.signals)
+
+
+def _generate(signals: tuple[tuple[Any, ...], ...]) -> Any:
+    """The decode function of :class:`FastMessage`: ``data (bytes) -> {signal: value}``."""
+    consts: dict[str, Any] = {"_from_bytes": int.from_bytes}
+    lines = ["def decode(data):", "    raw = _from_bytes(data, 'little')  # Intel order: DBC bit i = bit i"]
+    items = []
+    for i, (name, start, mask, sign, scaled, scale, offset, choices) in enumerate(signals):
+        lines.append(f"    v{i} = (raw >> {start}) & {mask}" if start else f"    v{i} = raw & {mask}")
+        if sign:  # two's complement
+            lines.append(f"    if v{i} & {sign}:\n        v{i} -= {sign << 1}")
+        # cantools' LinearConversion / LinearIntegerConversion: raw * scale + offset
+        consts[f"_k{i}"], consts[f"_o{i}"] = scale, offset
+        value = f"v{i} * _k{i} + _o{i}" if scaled else f"v{i}"
+        if choices is not None:  # NamedSignalConversion: the choice of the raw value, if any
+            consts[f"_c{i}"] = choices
+            lines.append(f"    x{i} = _c{i}.get(v{i})\n    if x{i} is None:\n        x{i} = {value}")
+            value = f"x{i}"
+        items.append(f"{name!r}: {value}")
+    lines.append("    return {" + ", ".join(items) + "}")
+    exec(compile("\n".join(lines), "<can_nav FastMessage>", "exec"), consts)  # noqa: S102 (our own text)
+    return consts["decode"]
+
+
+def _linear(conv: Any) -> tuple[bool, Any, Any] | None:
+    """(scaled, scale, offset) of an identity or linear conversion; None for any other kind."""
+    if type(conv) is IdentityConversion and not conv.is_float:
+        return False, 1, 0
+    if type(conv) in (LinearConversion, LinearIntegerConversion):
+        return True, conv.scale, conv.offset
+    return None
+
+
+def compile_message(message: Message) -> FastMessage | None:
+    """A :class:`FastMessage` for ``message``, or None when it has a feature the fast path
+    does not reproduce exactly (big-endian or float signals, multiplexing, containers, an
+    unknown conversion): such messages keep cantools' decode."""
+    if message.is_container or message.is_multiplexed() or message.length <= 0:
+        return None
+    signals = []
+    for sg in message.signals:
+        if sg.byte_order != "little_endian" or sg.is_float or sg.multiplexer_ids or sg.length <= 0:
+            return None
+        conv, choices = sg.conversion, None
+        if type(conv) is NamedSignalConversion:
+            choices = dict(conv.choices)  # raw int -> the NamedSignalValue cantools returns
+            conv = getattr(conv, "_conversion", None)  # the numeric part, used when no choice matches
+        lin = _linear(conv)
+        if lin is None or sg.start + sg.length > 8 * message.length:
+            return None
+        sign = 1 << (sg.length - 1) if sg.is_signed else 0
+        signals.append((sg.name, sg.start, (1 << sg.length) - 1, sign, *lin, choices))
+    return FastMessage(message, signals)
+
+
 def _value(v: Any) -> float | None:
     """A decoded signal value, None for the ``NotAvailable`` choice."""
     if isinstance(v, (NamedSignalValue, str)):
@@ -148,36 +232,56 @@ class CanNavDecoder:
         self.last_reject = ""
         self._offset_s = 0.0  # vehicle clock - arrival clock, from the last ATR_Time frame
         self._leg: tuple[int, bool] | None = None
+        # standard-id messages that cantools' lookup returns for their own id, decoded directly
+        self._fast: dict[int, FastMessage] = {}
+        for m in self.db.messages:
+            fm = compile_message(m)
+            if (fm is not None and not m.is_extended_frame and 0 <= m.frame_id <= 0x7FF
+                    and self.db.get_message_by_frame_id(m.frame_id) is m):
+                self._fast[m.frame_id] = fm
 
-    def feed(self, arbitration_id: int, data: bytes, is_extended: bool, t_arrival: float) -> list[NavFix | LegChange]:
-        """Decode one frame received at ``t_arrival`` (UNIX s)."""
+    def _decode(self, arbitration_id: int, data: bytes, is_extended: bool) -> tuple[Message | None, Any]:
+        """(message, signals) of a frame through cantools; (None, None) when it is rejected
+        (counted). ``feed`` takes a :class:`FastMessage` instead for the usual frames: an int
+        id of a compiled message, bytes of its length, standard flag; same message, same values."""
         try:
             msg = self.db.get_message_by_frame_id(arbitration_id)
         except KeyError:
             msg = None
         if msg is None or bool(msg.is_extended_frame) != bool(is_extended):
             self.counts["unknown"] += 1
-            return []
+            return None, None
         try:
-            sig = msg.decode(bytes(data), decode_choices=True, scaling=True)
+            return msg, msg.decode(bytes(data), decode_choices=True, scaling=True)
         except Exception as exc:  # cantools raises several types for short or malformed data
-            return self._reject("bad_frame", f"{msg.name} 0x{arbitration_id:X} data {bytes(data).hex()}: {exc}")
+            self._reject("bad_frame", f"{msg.name} 0x{arbitration_id:X} data {bytes(data).hex()}: {exc}")
+            return None, None
+
+    def feed(self, arbitration_id: int, data: bytes, is_extended: bool, t_arrival: float) -> list[NavFix | LegChange]:
+        """Decode one frame received at ``t_arrival`` (UNIX s)."""
+        fm = self._fast.get(arbitration_id) if type(arbitration_id) is int else None
+        if fm is not None and type(data) is bytes and len(data) == fm.length and not is_extended:
+            msg, sig, fid = fm.message, fm.decode(data), fm.frame_id  # the usual frame
+        else:
+            msg, sig = self._decode(arbitration_id, data, is_extended)
+            if msg is None:
+                return []
+            fid = msg.frame_id
         t = float(t_arrival) + self._offset_s
         out: list[NavFix | LegChange] = []
-        fid = msg.frame_id
         if fid == NAV_POSITION:
             lat, lon = float(sig["Latitude"]), float(sig["Longitude"])
             if abs(lat) > 90.0 or abs(lon) > 180.0:
                 return self._reject("invalid", f"{msg.name}: position {lat}, {lon} out of range")
-            out.append(NavFix(t=t, lat_deg=lat, lon_deg=lon, source="can:ATR_NavPosition"))
+            out.append(make_fix(t, lat, lon, None, None, None, None, "can:ATR_NavPosition"))
         elif fid == NAV_ATTITUDE:
             hdg = float(sig["Heading"])
             if not 0.0 <= hdg < 360.0:
                 return self._reject("invalid", f"{msg.name}: heading {hdg} outside [0, 360)")
-            out.append(NavFix(t=t, heading_deg=hdg, speed_m_s=_value(sig["Speed"]), source="can:ATR_NavAttitude"))
+            out.append(make_fix(t, None, None, hdg, None, None, _value(sig["Speed"]), "can:ATR_NavAttitude"))
         elif fid == NAV_ALTITUDE:
             alt, depth = _value(sig["Altitude"]), _value(sig["Depth"])
-            out.append(NavFix(t=t, altitude_m=alt, depth_m=depth, source="can:ATR_NavAltitude"))
+            out.append(make_fix(t, None, None, None, alt, depth, None, "can:ATR_NavAltitude"))
         elif fid == TIME:
             us = int(sig["Microseconds"])
             if us > 999_999:

@@ -41,14 +41,23 @@ class NavDecoder:
 
     def feed(self, record: LogRecord) -> list[NavEvent]:
         """Decode one record; [] when it carries no navigation or was dropped."""
-        if record.link == "nmea":
+        link = record.link
+        if link == "nmea":
             msg = record.msg
+            if type(msg) is bytes:  # the usual case: no copy, no further check
+                return self.nmea.feed(msg, record.t)
             if not isinstance(msg, (bytes, bytearray)):
                 self.nmea.counts["garbage"] += 1
                 return []
-            return list(self.nmea.feed(bytes(msg), record.t))
-        if record.link == "can":
+            return self.nmea.feed(bytes(msg), record.t)
+        if link == "can":
             m = record.msg
+            if type(m) is dict:
+                # the usual case, checked once here by exact type: what int(), bytes() and
+                # bool() below would return unchanged
+                cid, data, ext = m.get("id"), m.get("data"), m.get("ext")
+                if type(cid) is int and type(data) is bytes and type(ext) is bool:
+                    return self.can.feed(cid, data, ext, record.t)
             try:
                 # data must already be bytes: bytes(<int>) would allocate that many zeros
                 if not isinstance(m["data"], (bytes, bytearray)):

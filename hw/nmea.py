@@ -21,7 +21,8 @@ DPT   depth below transducer, offset, max range               altitude_m (downwa
 
 The encoder side (``format_sentence`` and ``encode_*``) takes SI values (UNIX seconds, degrees,
 metres, m/s) and is what the simulation uses to write NMEA records into generated missions.
-:func:`parse_sentence` checks one line (length, framing, checksum) and splits it; the stateful
+:func:`parse_sentence` checks one line (length, framing, checksum) and splits it
+(:func:`split_sentence` gives the same as a plain tuple, for the decoder's per-line path); the stateful
 :class:`hw.nmea_decoder.NmeaDecoder` (re-exported here) turns sentences into ``NavFix`` and
 never raises on bad input: every line is accepted or counted under a reason (``too_long``,
 ``bad_checksum``, ``garbage``, ``unsupported``, ``bad_field``, ``invalid``, ``no_date``).
@@ -204,6 +205,83 @@ class NmeaReject(NmeaError):
         super().__init__(f"{reason}: {detail}")
 
 
+# masks of the XOR fold in _fast_checksum
+_M512, _M256, _M128, _M64, _M32, _M16 = ((1 << k) - 1 for k in (512, 256, 128, 64, 32, 16))
+_HEX = {f"{a}{b}".encode(): int(f"{a}{b}", 16) for a in "0123456789ABCDEFabcdef" for b in "0123456789ABCDEFabcdef"}
+"""Two hex digits -> value: what ``int(text, 16)`` gives for them, without parsing."""
+_ADDRESSES: dict[str, tuple[str, str]] = {}
+"""Addresses already matched by ``_ADDRESS``, split into (talker, type): a link repeats a few."""
+
+
+def _fast_checksum(body: bytes) -> int:
+    """:func:`checksum` without a Python step per byte.
+
+    The bytes, read as one little-endian integer, are folded in halves (... -> 64 -> 32 -> 16
+    -> 8 bits), starting at the smallest power of two that holds them: XOR is associative and
+    every byte keeps its lane, so the last 8 bits are the XOR of all the bytes.
+    """
+    n = len(body)
+    if n > 128:
+        return checksum(body)
+    x = int.from_bytes(body, "little")
+    if n > 8:
+        if n > 32:
+            if n > 64:
+                x = (x >> 512) ^ (x & _M512)
+            x = (x >> 256) ^ (x & _M256)
+        if n > 16:
+            x = (x >> 128) ^ (x & _M128)
+        x = (x >> 64) ^ (x & _M64)
+    x = (x >> 32) ^ (x & _M32)
+    x = (x >> 16) ^ (x & _M16)
+    return (x >> 8) ^ (x & 0xFF)
+
+
+def split_sentence(line: bytes) -> tuple[str, str, tuple[str, ...]]:
+    """:func:`parse_sentence` as a plain ``(talker, type, fields)`` tuple (the decoder's hot path).
+
+    Raises
+    ------
+    NmeaReject
+        With ``reason`` ``too_long``, ``garbage`` or ``bad_checksum``.
+    """
+    body = line.rstrip(b"\r\n")
+    n = len(body)
+    if n + 2 > MAX_SENTENCE_CHARS:
+        raise NmeaReject("too_long", f"{n + 2} characters, at most {MAX_SENTENCE_CHARS}")
+    if body[:1] != b"$":
+        raise NmeaReject("garbage", f"expected '$' at the start, got {body[:12]!r}")
+    star = body.rfind(b"*")
+    if star < 0 or n - star != 3:
+        raise NmeaReject("bad_checksum", f"expected '*hh' at the end, got {body[-6:]!r}")
+    inner = body[1:star]
+    try:
+        text = inner.decode("ascii")
+    except UnicodeDecodeError:
+        raise NmeaReject("garbage", f"non-ASCII bytes in {body[:24]!r}") from None
+    hexa = body[star + 1:]
+    want = _HEX.get(hexa) if type(hexa) is bytes else None  # a bytearray is not hashable
+    if want is None:  # int() also takes a few odd forms (' F', '+F'): the same rule as ever
+        try:
+            want = int(hexa, 16)
+        except ValueError:
+            raise NmeaReject("bad_checksum", f"checksum {hexa!r} is not two hex digits") from None
+    got = _fast_checksum(inner)
+    if got != want:
+        raise NmeaReject("bad_checksum", f"computed {got:02X}, sentence says {want:02X}")
+    fields = text.split(",")
+    address = fields[0]
+    split = _ADDRESSES.get(address)
+    if split is None:
+        if not _ADDRESS.match(address):
+            raise NmeaReject("garbage", f"address {address!r}: expected talker + type like 'GPGGA'")
+        # proprietary: manufacturer code, no talker id
+        split = ("P", address[1:]) if address.startswith("P") else (address[:2], address[2:])
+        if len(_ADDRESSES) < 1024:  # bounded: a stream of random valid addresses cannot grow it
+            _ADDRESSES[address] = split
+    return split[0], split[1], tuple(fields[1:])
+
+
 def parse_sentence(line: bytes) -> Sentence:
     """Check framing, length and checksum of one line and split it into fields.
 
@@ -217,31 +295,8 @@ def parse_sentence(line: bytes) -> Sentence:
     NmeaReject
         With ``reason`` ``too_long``, ``garbage`` or ``bad_checksum``.
     """
-    body = line.rstrip(b"\r\n")
-    if len(body) + 2 > MAX_SENTENCE_CHARS:
-        raise NmeaReject("too_long", f"{len(body) + 2} characters, at most {MAX_SENTENCE_CHARS}")
-    if not body.startswith(b"$"):
-        raise NmeaReject("garbage", f"expected '$' at the start, got {body[:12]!r}")
-    star = body.rfind(b"*")
-    if star < 0 or len(body) - star != 3:
-        raise NmeaReject("bad_checksum", f"expected '*hh' at the end, got {body[-6:]!r}")
-    try:
-        text = body[1:star].decode("ascii")
-    except UnicodeDecodeError:
-        raise NmeaReject("garbage", f"non-ASCII bytes in {body[:24]!r}") from None
-    try:
-        want = int(body[star + 1:], 16)
-    except ValueError:
-        raise NmeaReject("bad_checksum", f"checksum {body[star + 1:]!r} is not two hex digits") from None
-    got = checksum(body[1:star])
-    if got != want:
-        raise NmeaReject("bad_checksum", f"computed {got:02X}, sentence says {want:02X}")
-    address, *fields = text.split(",")
-    if not _ADDRESS.match(address):
-        raise NmeaReject("garbage", f"address {address!r}: expected talker + type like 'GPGGA'")
-    if address.startswith("P"):  # proprietary: manufacturer code, no talker id
-        return Sentence(talker="P", type=address[1:], fields=tuple(fields))
-    return Sentence(talker=address[:2], type=address[2:], fields=tuple(fields))
+    talker, kind, fields = split_sentence(line)
+    return Sentence(talker=talker, type=kind, fields=fields)
 
 
 from .nmea_decoder import NmeaDecoder  # noqa: E402  (re-export; it builds on the names above)

@@ -12,51 +12,73 @@ from collections import Counter
 from datetime import datetime, timezone
 from typing import Sequence
 
-from atr_node.records.nav import NavFix
+from atr_node.records.nav import NavFix, make_fix
 
-from .nmea import KNOT_M_S, REJECT_REASONS, SENTENCE_TYPES, NmeaReject, parse_sentence
+from .nmea import KNOT_M_S, REJECT_REASONS, SENTENCE_TYPES, NmeaReject, split_sentence
 
 _HALF_DAY_S = 43_200.0
+_isfinite = math.isfinite
 
 
 def _float(fields: Sequence[str], i: int, what: str) -> float | None:
     """Field ``i`` as a float; None when null or absent."""
-    if i >= len(fields) or fields[i] == "":
+    if i >= len(fields):
+        return None
+    text = fields[i]
+    if text == "":
         return None
     try:
-        v = float(fields[i])
+        v = float(text)
     except ValueError:
         raise NmeaReject("bad_field", f"{what} = {fields[i]!r}: expected a number") from None
-    if not math.isfinite(v):
+    if not _isfinite(v):
         raise NmeaReject("bad_field", f"{what} = {fields[i]!r}: expected a finite number")
     return v
+
+
+def _coord(value: str, hemi: str, deg_digits: int, hemis: tuple[str, str], limit: float) -> float:
+    """One of latitude (``ddmm.mmm``, N/S) or longitude (``dddmm.mmm``, E/W), signed degrees."""
+    dot = value.find(".")
+    split = (dot if dot >= 0 else len(value)) - 2
+    if split < 1 or split > deg_digits or hemi not in hemis:
+        raise NmeaReject("bad_field", f"position {value!r},{hemi!r}: expected d{'d' * (deg_digits - 1)}mm.mmm,"
+                                      f"{'N/S' if deg_digits == 2 else 'E/W'}")
+    try:
+        deg, minutes = int(value[:split]), float(value[split:])
+    except ValueError:
+        raise NmeaReject("bad_field", f"position {value!r}: expected digits") from None
+    v = deg + minutes / 60.0
+    if minutes >= 60.0 or v > limit:
+        raise NmeaReject("bad_field", f"position {value!r}: out of range")
+    return -v if hemi in "SW" else v
+
+
+_NS, _EW = ("N", "S"), ("E", "W")
 
 
 def _latlon(fields: Sequence[str], i: int) -> tuple[float, float] | None:
     """Latitude and longitude from ``ddmm.mmm,N,dddmm.mmm,E`` starting at field ``i``."""
     if len(fields) < i + 4 or "" in fields[i:i + 4]:
         return None
-    out = []
-    for value, hemi, deg_digits, limit in ((fields[i], fields[i + 1], 2, 90.0),
-                                           (fields[i + 2], fields[i + 3], 3, 180.0)):
-        dot = value.find(".")
-        split = (dot if dot >= 0 else len(value)) - 2
-        if split < 1 or split > deg_digits or hemi not in (("N", "S") if deg_digits == 2 else ("E", "W")):
-            raise NmeaReject("bad_field", f"position {value!r},{hemi!r}: expected d{'d' * (deg_digits - 1)}mm.mmm,"
-                                          f"{'N/S' if deg_digits == 2 else 'E/W'}")
-        try:
-            deg, minutes = int(value[:split]), float(value[split:])
-        except ValueError:
-            raise NmeaReject("bad_field", f"position {value!r}: expected digits") from None
-        v = deg + minutes / 60.0
-        if minutes >= 60.0 or v > limit:
-            raise NmeaReject("bad_field", f"position {value!r}: out of range")
-        out.append(-v if hemi in "SW" else v)
-    return out[0], out[1]
+    return (_coord(fields[i], fields[i + 1], 2, _NS, 90.0),
+            _coord(fields[i + 2], fields[i + 3], 3, _EW, 180.0))
+
+
+_HHMM = {f"{h:02d}{m:02d}": h * 3600.0 + m * 60.0 for h in range(24) for m in range(60)}
+"""Every valid ``hhmm`` -> ``h * 3600.0 + m * 60.0``, the first two terms of the sum below."""
 
 
 def _time_of_day(field: str) -> float:
     """Seconds since midnight from ``hhmmss[.ss]``."""
+    hm = _HHMM.get(field[:4])
+    if hm is not None and len(field) >= 6:  # the usual case: two int() parses become a lookup
+        try:
+            s = float(field[4:])
+        except ValueError:
+            raise NmeaReject("bad_field", f"time {field!r}: expected hhmmss.ss") from None
+        if 0.0 <= s < 61.0:
+            return hm + s  # == h * 3600.0 + m * 60.0 + s, evaluated left to right
+        raise NmeaReject("bad_field", f"time {field!r}: expected hhmmss.ss")
     try:
         h, m, s = int(field[0:2]), int(field[2:4]), float(field[4:])
     except (ValueError, IndexError):
@@ -100,6 +122,8 @@ class NmeaDecoder:
         self.last_reject = ""
         self._last_t: float | None = None  # last dated sentence time (UNIX s)
         self._offset_s = 0.0  # sentence clock - arrival clock
+        # sentence type -> bound handler, built once (SENTENCE_TYPES are the ones understood)
+        self._handlers = {k: getattr(self, "_" + k.lower()) for k in SENTENCE_TYPES}
 
     @property
     def rejected(self) -> int:
@@ -108,16 +132,17 @@ class NmeaDecoder:
     def feed(self, line: bytes, t_arrival: float) -> list[NavFix]:
         """Decode one line received at ``t_arrival`` (UNIX s); return 0 or 1 fix. Never raises on input."""
         try:
-            s = parse_sentence(line)
-            if s.talker == "P" or s.type not in SENTENCE_TYPES:
-                raise NmeaReject("unsupported", f"sentence type {'P' + s.type if s.talker == 'P' else s.type}")
-            fix = getattr(self, "_" + s.type.lower())(s.fields, float(t_arrival))
+            talker, kind, fields = split_sentence(line)
+            handler = self._handlers.get(kind) if talker != "P" else None
+            if handler is None:
+                raise NmeaReject("unsupported", f"sentence type {'P' + kind if talker == 'P' else kind}")
+            fix = handler(fields, float(t_arrival))
         except NmeaReject as exc:
             self.counts[exc.reason] += 1
             self.last_reject = f"{line[:90]!r}: {exc}"
             return []
         self.counts["accepted"] += 1
-        self.by_type[s.type] += 1
+        self.by_type[kind] += 1
         return [] if fix is None else [fix]
 
     # -- time ----------------------------------------------------------------------------------
@@ -136,12 +161,11 @@ class NmeaDecoder:
             t -= 86_400.0
         return t
 
+    # a sentence without time is stamped ``t_arrival + self._offset_s`` (inlined in the handlers)
+
     def _clock(self, t: float, t_arrival: float) -> None:
         self._last_t = t
         self._offset_s = t - t_arrival
-
-    def _untimed(self, t_arrival: float) -> float:
-        return t_arrival + self._offset_s
 
     # -- sentences -----------------------------------------------------------------------------
     def _gga(self, f: Sequence[str], ta: float) -> NavFix:
@@ -154,8 +178,7 @@ class NmeaDecoder:
         t = self._dated(_time_of_day(f[0]), ta)
         self._clock(t, ta)
         height = _float(f, 8, "GGA altitude")
-        return NavFix(t=t, lat_deg=pos[0], lon_deg=pos[1], depth_m=None if height is None else -height,
-                      source="nmea:GGA")
+        return make_fix(t, pos[0], pos[1], None, None, None if height is None else -height, None, "nmea:GGA")
 
     def _rmc(self, f: Sequence[str], ta: float) -> NavFix:
         if len(f) < 9:
@@ -171,8 +194,7 @@ class NmeaDecoder:
         if f[1] != "A" or pos is None or (len(f) > 11 and f[11] == "N"):
             raise NmeaReject("invalid", f"RMC status {f[1]!r} or null position")
         sog = _float(f, 6, "RMC speed")
-        return NavFix(t=t, lat_deg=pos[0], lon_deg=pos[1], speed_m_s=None if sog is None else sog * KNOT_M_S,
-                      source="nmea:RMC")
+        return make_fix(t, pos[0], pos[1], None, None, None, None if sog is None else sog * KNOT_M_S, "nmea:RMC")
 
     def _zda(self, f: Sequence[str], ta: float) -> None:
         if len(f) < 4 or "" in f[:4]:
@@ -184,19 +206,19 @@ class NmeaDecoder:
         self._clock(_midnight(year, month, day, "ZDA") + _time_of_day(f[0]), ta)
         return None
 
-    def _heading(self, f: Sequence[str], ta: float, kind: str) -> NavFix:
-        h = _float(f, 0, f"{kind} heading")
-        if h is None:
-            raise NmeaReject("invalid", f"{kind} null heading")
-        return NavFix(t=self._untimed(ta), heading_deg=h % 360.0, source=f"nmea:{kind}")
-
     def _hdt(self, f: Sequence[str], ta: float) -> NavFix:
-        return self._heading(f, ta, "HDT")
+        h = _float(f, 0, "HDT heading")
+        if h is None:
+            raise NmeaReject("invalid", "HDT null heading")
+        return make_fix(ta + self._offset_s, None, None, h % 360.0, None, None, None, "nmea:HDT")
 
     def _ths(self, f: Sequence[str], ta: float) -> NavFix:
         if len(f) < 2 or f[1] not in ("A", "E", "M", "S"):
             raise NmeaReject("invalid", f"THS mode {f[1] if len(f) > 1 else None!r}, expected A, E, M or S")
-        return self._heading(f, ta, "THS")
+        h = _float(f, 0, "THS heading")
+        if h is None:
+            raise NmeaReject("invalid", "THS null heading")
+        return make_fix(ta + self._offset_s, None, None, h % 360.0, None, None, None, "nmea:THS")
 
     def _vtg(self, f: Sequence[str], ta: float) -> NavFix:
         if len(f) > 8 and f[8] == "N":
@@ -208,10 +230,10 @@ class NmeaDecoder:
             sog = None if kmh is None else kmh / 3.6
         if sog is None:
             raise NmeaReject("invalid", "VTG null speed")
-        return NavFix(t=self._untimed(ta), speed_m_s=sog, source="nmea:VTG")
+        return make_fix(ta + self._offset_s, None, None, None, None, None, sog, "nmea:VTG")
 
     def _dpt(self, f: Sequence[str], ta: float) -> NavFix:
         d = _float(f, 0, "DPT depth")
         if d is None or d < 0:
             raise NmeaReject("invalid", f"DPT depth {f[0] if f else None!r}")
-        return NavFix(t=self._untimed(ta), altitude_m=d, source="nmea:DPT")
+        return make_fix(ta + self._offset_s, None, None, None, d, None, None, "nmea:DPT")

@@ -22,24 +22,37 @@ _BLOCK_BYTES = 1 << 20
 """Target size of one row strip, so a block's intermediates stay in cache."""
 
 
-def _separable_recip(anchor_rows: np.ndarray, rows_off: tuple[int, int], cols_in: np.ndarray,
-                     need: np.ndarray, row_pre: np.ndarray, ftype: type) -> np.ndarray:
-    """1 / valid count of a window when the valid mask is separable, NaN below ``need``.
+def _separable_recips(anchor_rows: np.ndarray, rows_off: tuple[int, int], cols_in: np.ndarray,
+                      need: np.ndarray, row_pre: np.ndarray, ftype: type) -> tuple[np.ndarray, np.ndarray]:
+    """1 / valid count of a window for every anchor when the valid mask is separable.
 
     The count is (valid tile rows inside the window) x (valid columns inside it), the rows
-    from ``row_pre``, the prefix sums of the valid rows; where the first factor is constant
-    (away from the tile's top and bottom and from ping drop-outs) the result is one
-    broadcast row.
+    from ``row_pre``, the prefix sums of the valid rows. A tile has few distinct row counts
+    (the full window, and one less per ping drop-out or tile edge inside it), so this returns
+    one reciprocal row per distinct count, NaN below ``need``, and which row each anchor row
+    uses: a block of anchors with one count reads a broadcast row, others one gather
+    (:func:`_block_recip`).
+
+    Returns
+    -------
+    table : ndarray, shape (distinct counts, anchor cols)
+    which : ndarray of intp, shape (anchor rows,)
     """
     n_rows = row_pre.size - 1
     rows_in = row_pre[np.clip(anchor_rows + rows_off[1], 0, n_rows)] - row_pre[np.clip(anchor_rows + rows_off[0], 0, n_rows)]
-    if rows_in.min() == rows_in.max():
-        n = (int(rows_in[0]) * cols_in)[None, :]
-    else:
-        n = rows_in[:, None] * cols_in[None, :]
-    r = np.divide(1.0, n, dtype=ftype)
-    np.copyto(r, np.nan, where=n < need)
-    return r
+    counts, which = np.unique(rows_in, return_inverse=True)
+    n = counts[:, None] * cols_in[None, :]
+    table = np.divide(1.0, n, dtype=ftype)
+    np.copyto(table, np.nan, where=n < need)
+    return table, which.reshape(-1).astype(np.intp)
+
+
+def _block_recip(table: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """Reciprocal counts of a block of anchor rows from :func:`_separable_recips`' table."""
+    first = int(which[0])
+    if which.size == 1 or (which == first).all():
+        return table[first:first + 1]
+    return table.take(which, axis=0)
 
 
 def _separable_setup(geom: WindowGeometry, js: np.ndarray, needs: set[str], col_valid: np.ndarray,
@@ -112,6 +125,9 @@ def read_scores(sat: SummedAreaTables, geom: WindowGeometry, names: tuple[str, .
         needs, cols_in, derived = _separable_setup(geom, js, needs, col_valid, median_n, ftype)
         rv = np.ones(sat.rows, dtype=np.int64) if row_valid is None else row_valid.astype(np.int64)
         row_pre = np.concatenate([[0], np.cumsum(rv)])
+        anchors_all = first_row + np.arange(rows_dec) * step
+        recips = {w: _separable_recips(anchors_all, rows_off[w], cols_in[w], need[w], row_pre, ftype)
+                  for w in windows}
 
     for k0 in range(0, rows_dec, block):
         count = min(block, rows_dec - k0)
@@ -133,9 +149,9 @@ def read_scores(sat: SummedAreaTables, geom: WindowGeometry, names: tuple[str, .
                 s[f"{table}_C"] = box(sat.strip(table, i0, count, step, *c_rows), c0, c1)
         recip = {}
         if col_valid is not None:
-            anchors_i = first_row + (k0 + np.arange(count)) * step
             for w in windows:
-                recip[w] = _separable_recip(anchors_i, rows_off[w], cols_in[w], need[w], row_pre, ftype)
+                table, which = recips[w]
+                recip[w] = _block_recip(table, which[k0:k0 + count])
         for w in ("E", "S", "C"):
             if f"n_{w}" in s:
                 n = s.pop(f"n_{w}")

@@ -20,13 +20,16 @@ Key = tuple[int, int]
 class ChunkStack:
     """Growable stack of per-chunk arrays of shape ``item``, with a key -> slot table."""
 
-    def __init__(self, item: tuple[int, ...], fill: float) -> None:
+    def __init__(self, item: tuple[int, ...], fill: float, *, buffer: np.ndarray | None = None) -> None:
         self.item, self.fill = item, fill
         self.slot: dict[Key, int] = {}
         self.free: list[int] = []
         self.high = 0
         """Slots ever used; the capacity beyond stays untouched (not resident in memory)."""
-        self.arr = np.empty((4, *item))
+        # a buffer of a discarded stack (its pages already mapped): every slot is filled
+        # when allocated, so its old contents never show
+        ok = buffer is not None and buffer.shape[1:] == tuple(item) and buffer.dtype == np.float64
+        self.arr = buffer if ok else np.empty((4, *item))
 
     def __len__(self) -> int:
         return len(self.slot)
@@ -70,12 +73,21 @@ class ChunkStack:
         """Copy of the arrays of ``keys`` (default all), (K, *item)."""
         return self.arr[self.slots(keys)]
 
+    def view(self, keys: list[Key]) -> np.ndarray:
+        """The arrays of ``keys`` (K, *item): a view of the stack if they hold slots 0..K-1 in
+        order (no copy), else a copy. Read it before changing the stack."""
+        slots = self.slots(keys)
+        if slots.size and slots[0] == 0 and slots[-1] == slots.size - 1 and np.all(np.diff(slots) == 1):
+            return self.arr[:slots.size]
+        return self.arr[slots]
+
 
 class LegLayer:
     """Evidence of one open leg (see the module docstring)."""
 
-    def __init__(self, n_det: int, nn: int) -> None:
-        self.chunks = ChunkStack((n_det, 2, nn), -1.0)
+    def __init__(self, n_det: int, nn: int, *, buffer: np.ndarray | None = None) -> None:
+        # buffer: the array of a closed leg's layer, reused (no page faults, no growth copies)
+        self.chunks = ChunkStack((n_det, 2, nn), -1.0, buffer=buffer)
         self.t = -np.inf
         self.n_obs = 0
         """Observations of this leg so far."""
@@ -115,22 +127,78 @@ def layer_terms(p: np.ndarray, eps: float, *, per_detector: bool = True
         (K, nn) additions to L_T and L_N, the number of masses clamped, and the
         per-detector terms (K, n_det, 2, nn), or None.
     """
+    d_lt, d_ln, n_clamped, per_det, _ = layer_terms_covered(p, eps, per_detector=per_detector, coverage=False)
+    return d_lt, d_ln, n_clamped, per_det
+
+
+def layer_terms_covered(p: np.ndarray, eps: float, *, per_detector: bool = True, coverage: bool = True
+                        ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray | None, np.ndarray | None]:
+    """:func:`layer_terms`, and the (K, nn) bool cells covered by some detector (a value
+    >= 0 anywhere in the layer: the coverage bitmap of the leg), from the same masks
+    (None if not ``coverage``)."""
     c, q = p[:, :, 0], p[:, :, 1]
     has_t = c >= 0.0
-    has_n = (q >= 0.0) & ~has_t  # the gate excludes notT: T wins for this (leg, detector)
+    has_n = q >= 0.0
+    has_n &= ~has_t  # the gate excludes notT: T wins for this (leg, detector)
     top = 1.0 - eps
-    n_clamped = int(np.count_nonzero(has_t & (c > top)) + np.count_nonzero(has_n & (q > top)))
+    # T evidence is rare (near detections): its terms only in the chunks that hold some
+    rows_t = np.flatnonzero(has_t.any(axis=(1, 2)))
+    c_t, has_ct = c[rows_t], has_t[rows_t]
+    n_clamped = int(np.count_nonzero(has_ct & (c_t > top)) + np.count_nonzero(has_n & (q > top)))
+    # per (detector, cell) term log1p(-min(|m|, top)) where there is evidence, +0.0 elsewhere
+    # (|m|: a -0.0 mass gives -0.0 as ever). Computed on contiguous copies, in place: a
+    # boolean assignment into the strided view of a (K, n_det, 2, nn) array costs 5x more
+    t_t = _terms(c_t, has_ct, top)
+    t_n = _terms(q, has_n, top)
+    d_ln = _sum_detectors(t_n, p.shape)
+    d_lt = np.zeros_like(d_ln)  # chunks without T: a sum of +0.0 terms
+    if t_t is not None:
+        d_lt[rows_t] = _sum_detectors(t_t, t_t.shape)
+    covered = None
+    if coverage:
+        has_n |= has_t  # c >= 0 or q >= 0
+        covered = has_n.any(axis=1)
+    if not per_detector:
+        return d_lt, d_ln, n_clamped, None, covered
     terms = np.zeros(p.shape)
-    # log1p only where there is evidence (T evidence is rare: near detections); elsewhere the
-    # term is 0. Element for element the values of where(has, log1p(-min(|m|, top)), 0)
-    # (|m| keeps a -0.0 mass giving the same signed zero as ever)
-    for which, m, has in ((0, c, has_t), (1, q, has_n)):
-        if has.all():
-            terms[:, :, which] = np.log1p(-np.minimum(np.abs(m), top))  # |m|: as below (-0.0)
-        elif has.any():
-            terms[:, :, which][has] = np.log1p(-np.minimum(np.abs(m[has]), top))
-    d_lt, d_ln = terms[:, 0, 0].copy(), terms[:, 0, 1].copy()
-    for d in range(1, p.shape[1]):  # fixed detector order: the same sum bit for bit everywhere
-        d_lt += terms[:, d, 0]
-        d_ln += terms[:, d, 1]
-    return d_lt, d_ln, n_clamped, terms if per_detector else None
+    if t_t is not None:
+        terms[rows_t, :, 0] = t_t
+    if t_n is not None:
+        terms[:, :, 1] = t_n
+    return d_lt, d_ln, n_clamped, terms, covered
+
+
+def _sum_detectors(t: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
+    """(K, nn) sum over detectors of ``t`` (K, n_det, nn), in the fixed detector order (the
+    same sum bit for bit everywhere); +0.0 (a sum of +0.0 terms) if ``t`` is None."""
+    if t is None:
+        return np.zeros((shape[0], shape[-1]))
+    s = t[:, 0].copy()
+    for d in range(1, t.shape[1]):
+        s += t[:, d]
+    return s
+
+
+def _terms(m: np.ndarray, has: np.ndarray, top: float) -> np.ndarray | None:
+    """(K, n_det, nn) ``log1p(-min(|m|, top))`` where ``has``, +0.0 elsewhere; None if no
+    element has evidence. Element for element the values of a masked evaluation: log1p is
+    applied to contiguous float64 arrays either way."""
+    if has.all():
+        x = np.abs(m)
+        np.minimum(x, top, out=x)
+        np.negative(x, out=x)
+        return np.log1p(x, out=x)
+    n_has = int(np.count_nonzero(has))
+    if n_has == 0:
+        return None
+    if 4 * n_has < m.size:  # sparse (T evidence: near detections only)
+        out = np.zeros(m.shape)
+        out[has] = np.log1p(-np.minimum(np.abs(m[has]), top))
+        return out
+    x = np.abs(m)
+    np.minimum(x, top, out=x)
+    np.copyto(x, 0.0, where=~has)  # no evidence: log1p(-0.0), replaced by +0.0 below
+    np.negative(x, out=x)
+    np.log1p(x, out=x)
+    np.copyto(x, 0.0, where=~has)
+    return x

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -86,7 +87,45 @@ _CONTENT_FIELDS = tuple(f.name for f in dataclasses.fields(Contact) if f.name no
 
 
 def label_cells(iy: np.ndarray, ix: np.ndarray) -> tuple[int, np.ndarray]:
-    """8-connected components of a sparse set of distinct cells; (n, labels (K,))."""
+    """8-connected components of a sparse set of distinct cells; (n, labels (K,)), labels
+    numbered in order of each component's first cell in the given order."""
+    k = iy.size
+    if k == 0:
+        return 0, np.zeros(0, dtype=np.int64)
+    limit = max(1 << 22, 64 * k)
+    if int(iy.max()) - int(iy.min()) + int(ix.max()) - int(ix.min()) + 2 > limit:
+        return label_graph(iy, ix)  # cells spread very far apart (a nav jump)
+    # a raster of the cells, labelled in C, with every run of empty rows (columns) cut to one:
+    # 8-adjacency (|dy| <= 1 and |dx| <= 1) is unchanged. Components are then numbered by
+    # first cell in the given order, as connected_components numbers them (label_graph)
+    ry, h = _squeeze(iy)
+    rx, w = _squeeze(ix)
+    if h * w > limit:
+        return label_graph(iy, ix)
+    img = np.zeros((h, w), dtype=bool)
+    img[ry, rx] = True
+    raw, n = ndimage.label(img, structure=np.ones((3, 3), dtype=bool))
+    raw = raw[ry, rx]
+    found, first = np.unique(raw, return_index=True)
+    renum = np.empty(n + 1, dtype=np.int64)
+    renum[found[np.argsort(first)]] = np.arange(found.size)
+    return int(n), renum[raw]
+
+
+def _squeeze(v: np.ndarray) -> tuple[np.ndarray, int]:
+    """Raster index of each coordinate, runs of unused values cut to one (order kept), and
+    the raster size."""
+    v0 = int(v.min())
+    used = np.zeros(int(v.max()) - v0 + 1, dtype=bool)
+    used[v - v0] = True
+    keep = used.copy()
+    keep[1:] |= used[:-1]  # a used value, or the first unused one after it
+    new = np.cumsum(keep) - 1
+    return new[v - v0], int(new[-1]) + 1
+
+
+def label_graph(iy: np.ndarray, ix: np.ndarray) -> tuple[int, np.ndarray]:
+    """:func:`label_cells` through a sparse neighbour graph (any spread of cells)."""
     k = iy.size
     if k == 0:
         return 0, np.zeros(0, dtype=np.int64)
@@ -131,19 +170,27 @@ class ContactTracker:
         if not keys:
             return
         acc = grid.chunk_accumulators(keys)
+        has_t = (acc[:, 0] < 0.0).any(axis=1)  # else no T evidence: Bel(T) = 0 everywhere
+        for key in (k for k, h in zip(keys, has_t) if not h):
+            self._cells.pop(key, None)
+        rows = np.flatnonzero(has_t)
+        if not rows.size:
+            return
+        # one closed_form over every chunk, on contiguous copies: element for element the
+        # values of one call per chunk (the same contiguous kernels)
+        m = closed_form(np.ascontiguousarray(acc[rows, 0]), np.ascontiguousarray(acc[rows, 1]))
+        r, c = np.nonzero(m.m_t >= self.fusion.withdraw_bel)
+        bounds = np.searchsorted(r, np.arange(rows.size + 1))
         n = grid.n
-        local = np.arange(grid.nn)
-        for key, a in zip(keys, acc):
-            if not (a[0] < 0.0).any():  # no T evidence: Bel(T) = 0 everywhere
+        for i, row in enumerate(rows.tolist()):
+            key = keys[row]
+            a, b = bounds[i], bounds[i + 1]
+            if a == b:
                 self._cells.pop(key, None)
                 continue
-            m = closed_form(a[0], a[1])
-            sel = np.flatnonzero(m.m_t >= self.fusion.withdraw_bel)
-            if sel.size == 0:
-                self._cells.pop(key, None)
-                continue
-            self._cells[key] = (key[0] * n + local[sel] // n, key[1] * n + local[sel] % n,
-                                m.m_t[sel], m.m_n[sel], m.m_theta[sel])
+            sel = c[a:b]
+            self._cells[key] = (key[0] * n + sel // n, key[1] * n + sel % n, m.m_t[i, sel], m.m_n[i, sel],
+                                m.m_theta[i, sel])
 
     def update(self, grid: EvidenceGrid, t: float) -> list[Contact]:
         """Re-extract contacts after new evidence; return the messages to publish."""
@@ -166,17 +213,23 @@ class ContactTracker:
         cn = np.bincount(lab, weights=bel * nn_, minlength=n_comp) / np.maximum(w, 1e-300)
         var = np.bincount(lab, weights=bel * ((e - ce[lab]) ** 2 + (nn_ - cn[lab]) ** 2), minlength=n_comp)
         sigma = np.sqrt(0.5 * var / np.maximum(w, 1e-300) + grid.cell_m ** 2 / 12.0)
+        # peak cell of each label: its highest Bel(T), the last such cell on a tie (as the last
+        # of a stable sort by (label, bel))
+        top = np.full(n_comp, -np.inf)
+        np.maximum.at(top, lab, bel)
+        at_top = np.flatnonzero(bel == top[lab])
         peak = np.zeros(n_comp, dtype=np.int64)
-        if n_comp:
-            order = np.lexsort((bel, lab))  # last of each label = its peak cell
-            last = np.flatnonzero(np.r_[lab[order][1:] != lab[order][:-1], True])
-            peak[lab[order][last]] = order[last]
-        # one-to-one matching, nearest first, within the gate
+        np.maximum.at(peak, lab[at_top], at_top)
+        # one-to-one matching, nearest first, within the gate (one distance matrix, live
+        # contacts x components; the same element-wise hypot as one row at a time)
         pairs = []
-        for cid, c in self.live.items():
-            d = np.hypot(ce - c.east_m, cn - c.north_m)
-            for j in np.flatnonzero(d <= self.gate_m):
-                pairs.append((float(d[j]), cid, int(j)))
+        if self.live and n_comp:
+            cids = list(self.live)
+            le = np.array([self.live[c].east_m for c in cids])
+            ln = np.array([self.live[c].north_m for c in cids])
+            d = np.hypot(ce[None, :] - le[:, None], cn[None, :] - ln[:, None])
+            ii, jj = np.nonzero(d <= self.gate_m)
+            pairs = list(zip(d[ii, jj].tolist(), [cids[i] for i in ii.tolist()], jj.tolist()))
         pairs.sort()
         comp_id: dict[int, int] = {}
         used: set[int] = set()
@@ -196,10 +249,11 @@ class ContactTracker:
             cid = comp_id.get(j)
             state = "update" if cid is not None else "new"
             legs = tuple(grid.legs_at(int(iy[p]), int(ix[p])))
-            dets = [grid.detections[i] for i in d_order[d_bounds[j]:d_bounds[j + 1]]]
+            dets = [grid.detections[i] for i in d_order[d_bounds[j]:d_bounds[j + 1]].tolist()]
+            names = {r.detector for r in dets}
             fields = dict(east_m=float(ce[j]), north_m=float(cn[j]), sigma_m=float(sigma[j]), bel=float(bel[p]),
                           pl=float(1.0 - mn[p]), m_theta=float(mth[p]), looks=len(legs), detections=len(dets),
-                          detectors=tuple(d for d in grid.detectors if any(r.detector == d for r in dets)),
+                          detectors=tuple(d for d in grid.detectors if d in names),
                           legs=legs)
             if state == "update":
                 old = self.live[cid]
@@ -241,21 +295,30 @@ class ContactTracker:
         conf = np.array([max(r.confidence, 1e-12) for r in dets])
         e, n = grid.cell_centre(iy, ix)
         kept: dict[bytes, tuple[int, np.ndarray]] = {}  # the groupings of today's regions only
-        for j in np.unique(det_reg[det_reg >= 0]):
-            members = np.flatnonzero(det_reg == j)
-            if members.size < 2:
+        # cells and detections of each region from one stable sort each (same members, same
+        # ascending order as a scan per region)
+        c_order = np.argsort(reg, kind="stable")
+        c_bounds = np.searchsorted(reg[c_order], np.arange(n_reg + 1))
+        d_order = np.argsort(det_reg, kind="stable")
+        d_bounds = np.searchsorted(det_reg[d_order], np.arange(n_reg + 1)).tolist()
+        xy_all = np.column_stack([de[d_order], dn[d_order]])  # a region's members: rows a..b
+        conf_all = conf[d_order]
+        for j in np.unique(det_reg[det_reg >= 0]).tolist():
+            a, b = d_bounds[j], d_bounds[j + 1]
+            if b - a < 2:
                 continue
+            members = d_order[a:b]
             # leader_groups is deterministic: a region whose detections did not change (most
             # of them, from one update to the next) reuses its grouping
-            xy = np.column_stack([de[members], dn[members]])
-            mkey = xy.tobytes() + conf[members].tobytes()
-            ng, g = kept[mkey] = self._groups.get(mkey) or leader_groups(xy, conf[members], radius_m=self.gate_m)
+            xy = xy_all[a:b]
+            mkey = xy.tobytes() + conf_all[a:b].tobytes()
+            ng, g = kept[mkey] = self._groups.get(mkey) or leader_groups(xy, conf_all[a:b], radius_m=self.gate_m)
             if ng < 2:
                 continue
             wsum = np.bincount(g, weights=conf[members], minlength=ng)
             ge = np.bincount(g, weights=conf[members] * de[members], minlength=ng) / wsum
             gn = np.bincount(g, weights=conf[members] * dn[members], minlength=ng) / wsum
-            cells = np.flatnonzero(reg == j)
+            cells = c_order[c_bounds[j]:c_bounds[j + 1]]
             nearest = np.argmin((e[cells, None] - ge[None, :]) ** 2 + (n[cells, None] - gn[None, :]) ** 2, axis=1)
             new_labels = np.r_[j, n_comp + np.arange(ng - 1)]  # group 0 keeps the region's label
             lab[cells] = new_labels[nearest]

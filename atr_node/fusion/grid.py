@@ -31,7 +31,7 @@ import numpy as np
 
 from ..config import DETECTOR_NAMES, FusionSettings
 from ..errors import FusionError
-from .chunks import ChunkStack, Key, LegLayer, layer_terms
+from .chunks import ChunkStack, Key, LegLayer, layer_terms, layer_terms_covered
 from .deposit import PdReducer
 from .mass import TNMasses, closed_form
 from .observation import DetectionRecord, Observation, association_gate_m, gate_cells
@@ -88,6 +88,14 @@ class EvidenceGrid:
         self.changed: dict[tuple[int, int], int] = {}
         """chunk -> stamp of its last change (contact extraction recomputes only those)."""
         self._reducer = PdReducer(self.cell_m)
+        self._spare: np.ndarray | None = None
+        """Array of the last closed leg's layer, reused by the next leg (pages mapped)."""
+
+    def __getstate__(self) -> dict:
+        """Pickled (sent to another process) without the spare layer array."""
+        state = self.__dict__.copy()
+        state["_spare"] = None
+        return state
 
     # ------------------------------------------------------------------ indexing
     def cell_of(self, east_m: np.ndarray | float, north_m: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
@@ -132,15 +140,19 @@ class EvidenceGrid:
         lut = np.zeros(hits.size, dtype=np.int64)
         for c in touched.tolist():  # one Python step per chunk, not per pixel
             g = c if uniq is None else int(uniq[c])
-            key = (cy0 + g // wc, cx0 + g % wc)
-            lut[c] = chunks.get(key)
-            self.changed[key] = self.stamp
-            if layer is not None:
-                layer.touched[key] = layer.n_obs
-                if key in layer.retired:
-                    layer.retired.discard(key)
-                    self.n_reopened += 1
+            lut[c] = self._touch(chunks, (cy0 + g // wc, cx0 + g % wc), layer)
         return lut[code] * stride + cell
+
+    def _touch(self, chunks: ChunkStack, key: Key, layer: LegLayer | None) -> int:
+        """Slot of chunk ``key`` (allocated if new), marked changed and touched by ``layer``."""
+        s = chunks.get(key)
+        self.changed[key] = self.stamp
+        if layer is not None:
+            layer.touched[key] = layer.n_obs
+            if key in layer.retired:
+                layer.retired.discard(key)
+                self.n_reopened += 1
+        return s
 
     def _layer(self, leg: int, t: float) -> LegLayer:
         if leg in self.closed_legs:
@@ -149,7 +161,8 @@ class EvidenceGrid:
             if self.auto_close:
                 for other in sorted(self.open):
                     self.close_leg(other)
-            self.open[leg] = LegLayer(len(self.detectors), self.nn)
+            spare, self._spare = getattr(self, "_spare", None), None
+            self.open[leg] = LegLayer(len(self.detectors), self.nn, buffer=spare)
         layer = self.open[leg]
         layer.t = max(layer.t, t)
         return layer
@@ -202,25 +215,51 @@ class EvidenceGrid:
             base = self._flat(layer.chunks, iy, ix, stride, layer)
             flat = layer.chunks.arr.reshape(-1)
             for j, k in enumerate(det_idx):
-                v = vmax[j]
-                hit = np.flatnonzero(v >= 0.0)  # -1: this detector covered no pixel there
-                np.maximum.at(flat, base[hit] + (2 * k + 1) * self.nn, v[hit])
+                # -1 (this detector covered no pixel there) is a no-op under the maximum: layer
+                # values are -1 or masses >= 0, and every cell's chunk is allocated
+                np.maximum.at(flat, base + (2 * k + 1) * self.nn, vmax[j])
 
     def _deposit_detections(self, layer: LegLayer, obs: Observation, det_idx: list[int]) -> None:
         """T side of an observation: each detection's confidence over its gate, the maximum
-        per (detector, cell), and the georeferenced detection records (SPEC section 7)."""
+        per (detector, cell), and the georeferenced detection records (SPEC section 7).
+
+        All gates go in one scatter (maximum: order-free); their chunks are looked up in
+        the order of one lookup per detection (each detection's chunks in chunk order), so
+        that chunks are allocated, and listed, exactly as gate by gate."""
+        gates: list[tuple[int, np.ndarray, np.ndarray, float]] = []
         for d, k in zip(obs.detectors, det_idx):
             for det in d.detections:
                 e, n = obs.geometry.world(det.row, det.col)
-                self._deposit_t(layer, k, float(e), float(n), det.confidence)
+                iy, ix = gate_cells(float(e), float(n), gate_m=self.gate_m, cell_m=self.cell_m)
+                gates.append((k, iy, ix, det.confidence))
                 self.detections.append(DetectionRecord(obs.leg, d.detector, float(e), float(n), float(obs.t),
                                                        float(det.confidence), float(det.gamma)))
-
-    def _deposit_t(self, layer: LegLayer, k: int, east_m: float, north_m: float, confidence: float) -> None:
-        iy, ix = gate_cells(east_m, north_m, gate_m=self.gate_m, cell_m=self.cell_m)
-        base = self._flat(layer.chunks, iy, ix, len(self.detectors) * 2 * self.nn, layer)
+        if not gates:
+            return
+        n = self.n
+        iy = np.concatenate([g[1] for g in gates])
+        ix = np.concatenate([g[2] for g in gates])
+        sizes = [g[1].size for g in gates]
+        gate_of = np.repeat(np.arange(len(gates)), sizes)
+        cy, cx = iy // n, ix // n
+        cy0, cx0 = int(cy.min()), int(cx.min())
+        wc = int(cx.max()) - cx0 + 1
+        code = (cy - cy0) * wc + (cx - cx0)  # row-major in (cy, cx): one lookup's chunk order
+        ncode = int(code.max()) + 1
+        pairs = np.unique(gate_of * ncode + code)  # by gate, then chunk order
+        uniq, inv = np.unique(code, return_inverse=True)
+        slot_of: dict[int, int] = {}
+        for c in (pairs % ncode).tolist():
+            if c not in slot_of:
+                key = (cy0 + c // wc, cx0 + c % wc)
+                slot_of[c] = self._touch(layer.chunks, key, layer)
+        slots = np.array([slot_of[c] for c in uniq.tolist()], dtype=np.int64)
+        stride = len(self.detectors) * 2 * self.nn
+        cell = (iy - cy * n) * n + (ix - cx * n)
+        ks = np.array([g[0] for g in gates], dtype=np.int64)[gate_of]
+        conf = np.array([g[3] for g in gates], dtype=np.float64)[gate_of]
         # T evidence once per (leg, detector) over the gate: the maximum over detections there
-        np.maximum.at(layer.chunks.arr.reshape(-1), base + 2 * k * self.nn, confidence)
+        np.maximum.at(layer.chunks.arr.reshape(-1), slots[inv.reshape(-1)] * stride + cell + 2 * ks * self.nn, conf)
 
     def deposit(self, leg: int, detector: str, t: float, iy: np.ndarray, ix: np.ndarray, *,
                 m_t: np.ndarray | float | None = None, m_n: np.ndarray | float | None = None) -> None:
@@ -255,6 +294,7 @@ class EvidenceGrid:
         self.closed_legs.add(leg)
         if layer is not None:
             self._commit(leg, layer, layer.chunks.keys)
+            self._spare = layer.chunks.arr  # the layer is gone: its array serves the next leg
 
     def _commit(self, leg: int, layer: LegLayer, keys: list[Key]) -> None:
         """Add the log terms of some chunks of a leg's layer, then release them from the layer.
@@ -266,8 +306,9 @@ class EvidenceGrid:
         if not keys:
             return
         self.stamp += 1
-        p = layer.chunks.gather(keys)
-        d_lt, d_ln, n_cl, per_det = layer_terms(p, self.fusion.eps, per_detector=self._diag is not None)
+        p = layer.chunks.view(keys)  # read before the release below
+        d_lt, d_ln, n_cl, per_det, covered = layer_terms_covered(p, self.fusion.eps,
+                                                                 per_detector=self._diag is not None)
         self.n_clamped += n_cl
         slots = np.array([self._ln.get(k) for k in keys], dtype=np.int64)
         self._ln.arr[slots] += d_ln
@@ -278,7 +319,6 @@ class EvidenceGrid:
         if self._diag is not None:
             dslots = np.array([self._diag.get(k) for k in keys], dtype=np.int64)
             self._diag.arr[dslots] += per_det
-        covered = (p >= 0.0).any(axis=(1, 2))
         for key, cov in zip(keys, covered):
             legs = self.cover.setdefault(key, {})
             bits = None if cov.all() else np.packbits(cov)
@@ -287,6 +327,8 @@ class EvidenceGrid:
             self.last_t[key] = max(self.last_t.get(key, -np.inf), layer.t)
             self.changed[key] = self.stamp
             layer.touched.pop(key, None)
+        if self.open.get(leg) is not layer:  # close_leg: the whole layer goes, no slot to free
+            return
         layer.retired.update(keys)
         layer.chunks.release(keys)
 
@@ -346,15 +388,15 @@ class EvidenceGrid:
     def has_t_evidence(self, keys: list[Key]) -> list[bool]:
         """Per chunk, whether it may hold T evidence (committed ``L_T``, or a T mass in an
         open layer): a chunk without is Bel(T) = 0 everywhere, no need to evaluate it."""
-        out = []
-        for key in keys:
-            found = key in self._lt.slot
-            for layer in self.open.values():
-                if found:
-                    break
-                s = layer.chunks.slot.get(key)
-                found = s is not None and bool((layer.chunks.arr[s, :, 0] >= 0.0).any())
-            out.append(found)
+        out = [key in self._lt.slot for key in keys]
+        for layer in self.open.values():
+            idx = [(i, layer.chunks.slot[k]) for i, k in enumerate(keys) if not out[i] and k in layer.chunks.slot]
+            if idx:
+                rows, slots = zip(*idx)
+                # one gather of the T planes of these chunks: any T mass >= 0
+                found = (layer.chunks.arr[np.array(slots), :, 0] >= 0.0).any(axis=(1, 2))
+                for i, f in zip(rows, found.tolist()):
+                    out[i] = f
         return out
 
     def detector_accumulators(self, keys: list[Key]) -> np.ndarray:
@@ -390,8 +432,9 @@ class EvidenceGrid:
         """Legs (committed or open) whose coverage includes cell (iy, ix)."""
         key = (iy // self.n, ix // self.n)
         cell = (iy - key[0] * self.n) * self.n + (ix - key[1] * self.n)
+        byte, bit = cell >> 3, 7 - (cell & 7)  # np.packbits order: first cell in the high bit
         legs = [leg for leg, bits in self.cover.get(key, {}).items()
-                if bits is None or np.unpackbits(bits, count=self.nn)[cell]]
+                if bits is None or (int(bits[byte]) >> bit) & 1]
         for leg, layer in self.open.items():
             s = layer.chunks.slot.get(key)
             if s is not None and (layer.chunks.arr[s, :, :, cell] >= 0.0).any():

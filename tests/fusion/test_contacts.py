@@ -8,7 +8,7 @@ import pytest
 
 from atr_node.config import FusionSettings
 from atr_node.fusion import Contact, ContactTracker, EvidenceGrid, and_contacts, or_contacts
-from atr_node.fusion.contacts import label_cells
+from atr_node.fusion.contacts import label_cells, label_graph
 
 from .conftest import DETS, TARGETS, mission_observations
 from .test_grid import TARGET, leg1, leg2
@@ -30,6 +30,22 @@ def test_label_cells_against_brute_force():
     # the same partition: a bijection between labels
     pairs = set(zip(lab.tolist(), ref_lab.tolist()))
     assert len(pairs) == n
+
+
+@pytest.mark.parametrize("spread", [1, 5000, 10**9])
+def test_label_cells_numbering_equals_the_graph_path(spread):
+    """The raster path (a compact bounding box) labels and numbers components exactly as the
+    neighbour graph (numbered by first cell in the given order: new contact ids follow it)."""
+    rng = np.random.default_rng(spread)
+    mask = rng.uniform(size=(60, 80)) < 0.3
+    iy, ix = np.nonzero(mask)
+    iy, ix = iy.astype(np.int64) - 31, ix.astype(np.int64) * spread - 40  # 10**9: no raster
+    order = rng.permutation(iy.size)  # any cell order (the tracker's: by chunk)
+    iy, ix = iy[order], ix[order]
+    n, lab = label_cells(iy, ix)
+    n_ref, lab_ref = label_graph(iy, ix)
+    assert n == n_ref and np.array_equal(lab, lab_ref)
+    assert np.array_equal(np.unique(lab, return_index=True)[1], np.sort(np.unique(lab, return_index=True)[1]))
 
 
 def test_mission_contacts_have_stable_ids_and_icd_messages(frame):

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from atr_node.config import FusionSettings
 from atr_node.fusion import EvidenceGrid
-from atr_node.fusion.chunks import layer_terms
+from atr_node.fusion.chunks import layer_terms, layer_terms_covered
 from atr_node.fusion.deposit import PdReducer
 from atr_node.fusion.observation import gate_cells, pixel_cells
 from atr_node.geo import TileGeometry
@@ -45,6 +45,10 @@ def coverage(rng: np.random.Generator, rows: int, cols: int, kind: str) -> np.nd
         cov = rng.uniform(size=(rows, cols)) < 0.7
     elif kind == "all":
         cov[:] = True
+    elif kind == "columns":  # a window, coverage changing down a few columns only
+        cov[:, 2:cols - 2] = True
+        for c in rng.integers(0, cols, size=max(1, cols // 20)):
+            cov[int(rng.integers(0, rows)):, c] = False
     return cov  # "none": nothing covered
 
 
@@ -72,9 +76,10 @@ def reduced(reducer: PdReducer, geom: TileGeometry, covs, pds, rows: slice, cols
     return out
 
 
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), heading=st.sampled_from([0.0, 90.0, 180.0, 45.0, 33.7, -121.0]),
-       kinds=st.lists(st.sampled_from(["window", "strip_start", "holes", "all", "none"]), min_size=1, max_size=4),
+       kinds=st.lists(st.sampled_from(["window", "strip_start", "holes", "all", "none", "columns"]), min_size=1,
+                     max_size=4),
        sub=st.sampled_from([1 << 18, 997, 64]), cell_m=st.sampled_from([0.5, 0.75, 1.0]))
 def test_reduction_equals_a_per_pixel_maximum(seed, heading, kinds, sub, cell_m):
     rng = np.random.default_rng(seed)
@@ -86,6 +91,27 @@ def test_reduction_equals_a_per_pixel_maximum(seed, heading, kinds, sub, cell_m)
     got = reduced(PdReducer(cell_m, sub_pixels=sub), geom, covs, pds, slice(0, rows), slice(0, cols))
     ref = reference(geom, covs, pds, cell_m)
     assert got == ref  # exact: same cells, same maxima (no cell without a covered pixel)
+
+
+@pytest.mark.parametrize("u_scale", [1.0, 1e-310, 0.0])
+@pytest.mark.parametrize("cell_m", [0.5, 0.3])
+def test_cell_planes_scaled_path_and_its_fallback_are_exact(u_scale, cell_m):
+    """Cells of the scaled path (cell_m a power of two: one pass less) and of the direct
+    expression (other cell sizes, subnormal direction components) against pixel_cells."""
+    rng = np.random.default_rng(4)
+    rows, cols = 37, 53
+    geom = straight(rows, cols, heading_deg=float(rng.uniform(0, 360)), east0=-0.0, north0=0.0, range0=0.0)
+    geom = TileGeometry(geom.east_m, geom.north_m, geom.ue * u_scale, geom.un, geom.ranges_m, geom.heading_grid_rad)
+    red = PdReducer(cell_m)
+    assert (red._scale is not None) == (cell_m == 0.5)
+    assert red.scaled(geom) == (cell_m == 0.5 and u_scale != 1e-310)  # the path taken
+    fy, fx = np.empty((rows, cols)), np.empty((rows, cols))
+    red._cell_planes(geom, slice(0, rows), slice(0, cols), fy, fx)
+    iy, ix = pixel_cells(geom, slice(0, rows), cell_m=cell_m)
+    assert np.array_equal(fy, iy) and np.array_equal(fx, ix)
+    covs = [coverage(rng, rows, cols, "columns"), coverage(rng, rows, cols, "window")]
+    pds = [rng.uniform(size=cols), rng.uniform(size=cols)]
+    assert reduced(red, geom, covs, pds, slice(0, rows), slice(0, cols)) == reference(geom, covs, pds, cell_m)
 
 
 def test_a_nav_jump_takes_the_sparse_path_and_a_sub_window_is_exact():
@@ -137,16 +163,26 @@ def test_grid_equals_a_per_pixel_deposit_bit_for_bit(frame):
         fast.add_observation(o)
     fast.close_all()
     ref = per_pixel_grid(obs, fusion, 3.0)
+    assert fast._spare is not None and len({o.leg for o in obs}) > 2  # later legs reused a layer array
     keys = sorted(ref.chunk_keys())
     assert sorted(fast.chunk_keys()) == keys
     assert fast.chunk_accumulators(keys).tobytes() == ref.chunk_accumulators(keys).tobytes()
     assert fast.covered_cells() == ref.covered_cells()
 
 
-@pytest.mark.parametrize("k", [1, 7])
-def test_layer_terms_without_per_detector_terms_are_the_same_sums(k):
+@pytest.mark.parametrize("k, case", [(1, "mixed"), (7, "mixed"), (5, "no_t"), (5, "no_n"), (5, "sparse_t"),
+                                     (5, "nothing"), (3, "dense_n")])
+def test_layer_terms_without_per_detector_terms_are_the_same_sums(k, case):
     rng = np.random.default_rng(k)
     p = rng.choice([-1.0, 0.0, -0.0, 0.3, 0.999, 1.0, 1.0 - 1e-12], size=(k, 4, 2, 64))
+    if case in ("no_t", "sparse_t", "dense_n", "nothing"):
+        p[:, :, 0] = -1.0
+    if case == "sparse_t":  # T evidence in one chunk only (the usual case: near detections)
+        p[k // 2, 1, 0, 5:9] = [0.7, -0.0, 1.0, 0.2]
+    if case in ("no_n", "nothing"):
+        p[:, :, 1] = -1.0
+    if case == "dense_n":
+        p[:, :, 1] = rng.choice([0.0, -0.0, 0.4, 1.0], size=p[:, :, 1].shape)
     d_lt, d_ln, n_cl, per = layer_terms(p, 1e-9)
     d_lt2, d_ln2, n_cl2, none = layer_terms(p, 1e-9, per_detector=False)
     assert none is None and n_cl2 == n_cl
@@ -159,6 +195,10 @@ def test_layer_terms_without_per_detector_terms_are_the_same_sums(k):
     ref_n = np.where(has_n, np.log1p(-np.minimum(np.abs(q), top)), 0.0)
     assert per[:, :, 0].tobytes() == ref_t.tobytes() and per[:, :, 1].tobytes() == ref_n.tobytes()
     assert d_ln.tobytes() == (((ref_n[:, 0] + ref_n[:, 1]) + ref_n[:, 2]) + ref_n[:, 3]).tobytes()
+    assert d_lt.tobytes() == (((ref_t[:, 0] + ref_t[:, 1]) + ref_t[:, 2]) + ref_t[:, 3]).tobytes()
+    assert n_cl == int(np.count_nonzero(has_t & (c > top)) + np.count_nonzero(has_n & (q > top)))
+    covered = layer_terms_covered(p, 1e-9, per_detector=False)[4]
+    assert np.array_equal(covered, (p >= 0.0).any(axis=(1, 2)))
 
 
 def test_open_layer_read_out_matches_commit_after_the_deposit(frame, make_grid):
@@ -171,3 +211,25 @@ def test_open_layer_read_out_matches_commit_after_the_deposit(frame, make_grid):
     before = grid.chunk_accumulators(keys)
     grid.close_all()
     assert grid.chunk_accumulators(keys).tobytes() == before.tobytes()
+
+
+def test_a_pickled_grid_drops_the_spare_layer_array_and_goes_on_the_same(frame):
+    import pickle
+
+    from .conftest import mission_observations
+    obs = mission_observations(frame, tiles_per_leg=2, rows=200)
+    grid = EvidenceGrid(FusionSettings(), gate_m=3.0)
+    cut = next(i for i, o in enumerate(obs) if o.leg != obs[0].leg)
+    for o in obs[:cut]:
+        grid.add_observation(o)
+    grid.close_leg(obs[0].leg)
+    assert grid._spare is not None  # the closed leg's layer array, for the next leg
+    copy = pickle.loads(pickle.dumps(grid))
+    assert copy._spare is None
+    for g in (grid, copy):
+        for o in obs[cut:]:
+            g.add_observation(o)
+        g.close_all()
+    keys = grid.chunk_keys()
+    assert copy.chunk_keys() == keys
+    assert copy.chunk_accumulators(keys).tobytes() == grid.chunk_accumulators(keys).tobytes()

@@ -1,0 +1,41 @@
+"""Replay with the main process scoring units while the worker is busy (``node.replay_main_scores``):
+the same contacts as in-process, whoever scored each unit."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+from atr_node.calibration.model import PerformanceModel
+from atr_node.io.atrlog import read_atrlog
+from atr_node.node.pipeline import Pipeline
+
+
+def test_main_process_scores_when_the_worker_is_busy_and_contacts_are_unchanged(small_mission):
+    settings, _cfg, files = small_mission
+    ref = Pipeline(settings, model=PerformanceModel.shipped(), workers=0, mode="replay")
+    pipe = Pipeline(settings, model=PerformanceModel.shipped(), workers=1, mode="replay")
+    try:
+        want = ref.replay(read_atrlog(files.atrlog)).contacts
+        pipe.warming.result(timeout=120)
+        # the worker sleeps: the first two units wait for it, the next ones the main process scores
+        pipe._pool.submit(time.sleep, 3.0)
+        got = pipe.replay(read_atrlog(files.atrlog)).contacts
+        st = pipe.stats
+        assert 1 <= st.units_main <= st.units - 2
+        assert got == want and len(got) > 0
+    finally:
+        ref.close()
+        pipe.close()
+
+
+def test_switched_off_the_main_process_only_waits(small_mission):
+    settings, _cfg, files = small_mission
+    off = settings.replace(node=dataclasses.replace(settings.node, replay_main_scores=False))
+    pipe = Pipeline(off, model=PerformanceModel.shipped(), workers=1, mode="replay")
+    try:
+        pipe._pool.submit(time.sleep, 1.0)
+        pipe.replay(read_atrlog(files.atrlog))
+        assert pipe.stats.units_main == 0 and pipe.stats.units > 2
+    finally:
+        pipe.close()
