@@ -330,7 +330,7 @@ class NodeSettings:
     70 B per pixel: ~0.65 GB at 8 Mpx), as it would after its first tile of that size. Set it
     to the sonar's unit size; 0 = a tiny warm-up only."""
     replay_main_scores: bool = True
-    """Replay mode (``--speed max``): when the worker already has two units waiting, the main
+    """Replay mode (``--speed max``): when the worker already has three units to score, the main
     process scores the next unit itself (the same pure function: the same results), so neither
     core idles; off = the main process only waits for the worker."""
 
