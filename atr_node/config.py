@@ -330,9 +330,10 @@ class NodeSettings:
     70 B per pixel: ~0.65 GB at 8 Mpx), as it would after its first tile of that size. Set it
     to the sonar's unit size; 0 = a tiny warm-up only."""
     replay_main_scores: bool = True
-    """Replay mode (``--speed max``): when the worker already has three units to score, the main
-    process scores the next unit itself (the same pure function: the same results), so neither
-    core idles; off = the main process only waits for the worker."""
+    """Replay mode (``--speed max``): when three units wait for the worker, the main process
+    scores the next one itself (the same pure function: the same results), so neither core
+    idles; off = the main process only waits for the worker. Not used live (it made the worst
+    tile latency longer: see ``atr_node.node.pipeline.MAIN_SCORES_AT``)."""
 
     def __post_init__(self) -> None:
         _check(self.queue_tiles >= 1, "node.queue_tiles", "must be >= 1")

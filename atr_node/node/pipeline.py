@@ -59,11 +59,15 @@ from .warmup import keep_small_pages, node_worker_init, warm_up_worker
 
 log = logging.getLogger(__name__)
 
-_MAIN_SCORES_AT = 3
-"""Replay: units not yet scored by the worker at which the main process scores the next one
-itself (``node.replay_main_scores``). Three keeps the worker busy while the main process
-scores (it still has two queued); two stole a third of the units and made the main process
-the bottleneck (median of 5 runs of the 32-Mpx mission: 17.9 Mpx/s at 3, 17.3 at 2, 16.9 off)."""
+MAIN_SCORES_AT = {"replay": 3}
+"""Units not yet scored by the worker at which the main process scores the next one itself
+(``node.replay_main_scores``), per mode. Replay (throughput): three keeps the worker busy
+while the main process scores (it still has two queued); two stole a third of the units and
+made the main process the bottleneck (median of 5 runs of the 32-Mpx mission: 17.9 Mpx/s at
+3, 17.3 at 2, 16.9 off). Not live: tried at one (the second side of a ping scored by the main
+process instead of queueing behind the first), the worst 8-Mpx tile latency went from 0.89 s
+to 1.02 s: the main process then scores and fuses both sides in series, and both cores
+scoring at once slowed each other (``tools/latency_breakdown.py``)."""
 
 NAV_KEEP_S = 300.0
 """INS fixes kept before the ping time of the last tile released (tiles arrive seconds late)."""
@@ -163,7 +167,8 @@ class Pipeline:
         # compact memory first, which doubled the node's time on the target VM (warmup.py)
         keep_small_pages()
         self._pool: ProcessPoolExecutor | None = None
-        self._main_scores = False
+        self._main_scores_at = 0
+        """Units pending in the worker at which this process scores the next one (0 = never)."""
         self.warming: Future | None = None
         """The worker's warm-up (done when the worker is ready for full-size tiles)."""
         self.channel: SlotChannel | None = None
@@ -173,8 +178,9 @@ class Pipeline:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
                                              initializer=node_worker_init)
             self.channel = SlotChannel(self._pool)
-            self._main_scores = mode == "replay" and settings.node.replay_main_scores
-            if self._main_scores:
+            if settings.node.replay_main_scores:
+                self._main_scores_at = MAIN_SCORES_AT.get(mode, 0)
+            if self._main_scores_at:
                 import cv2
 
                 cv2.setNumThreads(1)  # the other core is the worker's
@@ -360,9 +366,9 @@ class Pipeline:
             timing.mark_done()
             self._fuse(unit, model, res)
             return
-        if self._main_scores and sum(not f.done() for _, _, f in self._inflight) >= _MAIN_SCORES_AT:
-            # replay: the worker has a unit running and two waiting; rather than wait for it,
-            # this process scores this unit itself (detect is a pure function: same result)
+        if self._main_scores_at and sum(not f.done() for _, _, f in self._inflight) >= self._main_scores_at:
+            # the worker is busy (see MAIN_SCORES_AT): rather than queue behind it, this process
+            # scores this unit itself (detect is a pure function: the same result)
             timing.queued = time.monotonic()
             fut = Future()
             fut.set_result(detect(job))
