@@ -84,7 +84,9 @@ def _build_tables(x: np.ndarray, valid: np.ndarray, all_valid: bool, separable: 
         thresholds = [(_float32_bound(f * med, +1), +1) for f in (2.0, 4.0)] + \
                      [(_float32_bound(f * med, -1), -1) for f in (0.6, 0.3)]
         # NaN compares false; only infinite pixels need masking out of the segments.
-        check_inf = not all_valid
+        # Infinite pixels are no data: their segment codes are masked pixel by pixel, or, with
+        # a separable mask (they then fill whole columns or rows), with the empty columns below.
+        check_inf = not all_valid and not separable
     zero_by_pixel = not all_valid and not separable
 
     block = max(1, _BLOCK_BYTES // (8 * max(1, x.shape[1])))
@@ -120,17 +122,20 @@ def _build_tables(x: np.ndarray, valid: np.ndarray, all_valid: bool, separable: 
 
     if separable and not all_valid:
         # No data in whole columns and whole rows: zero them run by run.
-        bufs = ([p_in] if want_p else []) + ([j_in] if want_j else [])
+        # (segment codes: 2 = S 0 in g, 0 in |2S|; an infinite pixel compared as a hit)
+        bufs = [(p_in, 0)] if want_p else []
+        bufs += [(j_in, 0)] if want_j else []
+        bufs += [(g_in, 2), (ag_in, 0)] if want_g else []
         empty = np.flatnonzero(~col_valid)
         if empty.size:
             for run in np.split(empty, np.flatnonzero(np.diff(empty) > 1) + 1):
                 cols = slice(int(run[0]), int(run[-1]) + 1)
-                for buf in bufs:
-                    buf[:, cols] = 0
+                for buf, fill in bufs:
+                    buf[:, cols] = fill
         empty_rows = np.flatnonzero(~row_valid)
         if empty_rows.size:
-            for buf in bufs:
-                buf[empty_rows, :] = 0
+            for buf, fill in bufs:
+                buf[empty_rows, :] = fill
     if not separable:
         sat.add("n", n_full, cv2.CV_32S)
     if want_p and "p2_S" in needs:
@@ -198,7 +203,8 @@ def _score_rows(x: np.ndarray, *, first_row: int, stop_row: int, range0_m: float
     if b is None and needs & {"p_E", "p_S", "j_E", "j_S"}:
         # With whole-column no-data a plain column sum gives the NaN-aware mean (NaN columns
         # stay NaN, as column_mean gives them), one pass cheaper.
-        b = x.sum(axis=0, dtype=np.float64) / rows if separable and n_vrows == rows else column_mean(x)
+        b = (cv2.reduce(x, 0, cv2.REDUCE_SUM, dtype=cv2.CV_64F).reshape(-1) / rows
+             if separable and n_vrows == rows else column_mean(x))
     # A column without data or with b <= 0 (all zeros) keeps I_n = I: its windows are NaN or 0.
     b_eff = np.ones(cols) if b is None else np.where(np.isfinite(b) & (b > 0), b, 1.0)
     med = _column_array(median, cols, "median")

@@ -46,8 +46,19 @@ def quantized(rng: np.random.Generator) -> np.ndarray:
     return img
 
 
+def inf_rows_and_columns(rng: np.random.Generator) -> np.ndarray:
+    """Whole columns and rows of +inf / -inf (a separable mask of no data that compares as a
+    segment hit unless masked)."""
+    img = structured(rng)
+    img[:, [3, 4, 30]] = np.inf
+    img[[12, 25], :] = -np.inf
+    img[:, 50] = np.nan
+    return img
+
+
 SCENES = {"random": lambda rng: rayleigh(rng, 40, 60), "structured": structured, "nan_columns": nan_columns,
-          "nan_rows_and_columns": nan_rows_and_columns, "quantized": quantized}
+          "nan_rows_and_columns": nan_rows_and_columns, "quantized": quantized,
+          "inf_rows_and_columns": inf_rows_and_columns}
 
 
 @pytest.mark.parametrize("scene", sorted(SCENES))
