@@ -30,7 +30,6 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import hashlib  # noqa: E402
 import importlib  # noqa: E402
 import re  # noqa: E402
@@ -43,7 +42,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_node_fusion import record_calls  # noqa: E402
+from bench_node_fusion import mission_settings, record_calls  # noqa: E402
 
 
 def grid_digest(grid) -> str:
@@ -117,20 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--swath-m", type=float, default=200.0)
     ap.add_argument("--tile-pings", type=int, default=1024)
     args = ap.parse_args(argv)
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage
-        _set_madvise_hugepage(False)
-    except ImportError:
-        pass
-    from atr_node.config import Settings
+    from atr_node.node.warmup import keep_small_pages
     from atr_node.simulation.mission import generate_mission
 
-    base = Settings()
-    sim = dataclasses.replace(base.simulation, mission_legs=2 if args.quick else args.legs,
-                              mission_leg_length_m=60.0 if args.quick else 200.0,
-                              mission_swath_m=40.0 if args.quick else args.swath_m,
-                              mission_tile_pings=256 if args.quick else args.tile_pings)
-    s = base.replace(simulation=sim)
+    keep_small_pages()  # as the node does
+    s = mission_settings(args)
     with tempfile.TemporaryDirectory() as tmp:
         files = generate_mission(s, Path(tmp) / "m", seed=11)
         calls, frame, pixels = record_calls(s, files.atrlog)

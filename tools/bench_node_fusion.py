@@ -32,6 +32,19 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 
+def mission_settings(args: argparse.Namespace):
+    """Settings of the benchmark mission: ``args.legs`` legs of 200 m, ``args.swath_m`` swath,
+    tiles of ``args.tile_pings`` pings (``--quick``: 2 short legs of small tiles)."""
+    from atr_node.config import Settings
+
+    base = Settings()
+    sim = dataclasses.replace(base.simulation, mission_legs=2 if args.quick else args.legs,
+                              mission_leg_length_m=60.0 if args.quick else 200.0,
+                              mission_swath_m=40.0 if args.quick else args.swath_m,
+                              mission_tile_pings=256 if args.quick else args.tile_pings)
+    return base.replace(simulation=sim)
+
+
 def record_calls(settings, atrlog: Path) -> tuple[list[tuple], object, int]:
     """Replay ``atrlog`` in process; return the grid / tracker calls, the frame and pixels."""
     from atr_node.calibration.model import PerformanceModel
@@ -116,16 +129,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tile-pings", type=int, default=1024)
     args = ap.parse_args(argv)
 
-    from atr_node.config import Settings
     from atr_node.fusion import association_gate_m
     from atr_node.simulation.mission import generate_mission
 
-    base = Settings()
-    sim = dataclasses.replace(base.simulation, mission_legs=2 if args.quick else args.legs,
-                              mission_leg_length_m=60.0 if args.quick else 200.0,
-                              mission_swath_m=40.0 if args.quick else args.swath_m,
-                              mission_tile_pings=256 if args.quick else args.tile_pings)
-    s = base.replace(simulation=sim)
+    s = mission_settings(args)
     with tempfile.TemporaryDirectory() as tmp:
         files = generate_mission(s, Path(tmp) / "m", seed=11)
         calls, frame, pixels = record_calls(s, files.atrlog)
