@@ -36,13 +36,12 @@ import re  # noqa: E402
 import shutil  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
-import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_node_fusion import mission_settings, record_calls  # noqa: E402
+from bench_node_fusion import mission_settings, record_calls, replay_calls  # noqa: E402
 
 
 def grid_digest(grid) -> str:
@@ -89,22 +88,10 @@ def replay(pkg: str, settings, frame, calls, *, check: bool) -> tuple[list[float
     gate = association_gate_m(settings.fusion, settings.template)
     grid = grid_cls(settings.fusion, gate_m=gate, detectors=tuple(settings.detectors.enabled))
     tracker = tracker_cls(settings.fusion, frame, gate_m=gate)
-    spent, msgs, digests = [0.0, 0.0, 0.0], [], []
-    for c in calls:
-        t0 = time.process_time()
-        if c[0] == "obs":
-            grid.add_observation(c[1])
-            spent[0] += time.process_time() - t0
-        elif c[0] == "update":
-            out = tracker.update(grid, c[1])
-            spent[1] += time.process_time() - t0
-            msgs.append([m.to_message() for m in out])
-        else:
-            grid.close_all()
-            spent[2] += time.process_time() - t0
-        if check:
-            digests.append(grid_digest(grid))
-    return spent, msgs, digests
+    digests: list[str] = []
+    spent, updates = replay_calls(grid, tracker, calls,
+                                  after=(lambda g: digests.append(grid_digest(g))) if check else None)
+    return spent, [[m.to_message() for m in out] for out in updates], digests
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -80,26 +80,36 @@ def record_calls(settings, atrlog: Path) -> tuple[list[tuple], object, int]:
     return calls, pipe.frame, pipe.stats.pixels
 
 
-def time_calls(settings, gate_m: float, detectors, frame, calls) -> tuple[list[float], int]:
-    """One replay of the calls through a fresh grid and tracker: CPU seconds per kind."""
-    from atr_node.fusion import ContactTracker, EvidenceGrid
-
-    grid = EvidenceGrid(settings.fusion, gate_m=gate_m, detectors=detectors)
-    tracker = ContactTracker(settings.fusion, frame, gate_m=gate_m)
-    spent = [0.0, 0.0, 0.0]
-    n_msgs = 0
+def replay_calls(grid, tracker, calls, after=None) -> tuple[list[float], list[list]]:
+    """Replay recorded calls through ``grid`` and ``tracker``: CPU seconds per kind
+    (observations, contact updates, closing), the contacts each update returned, and
+    ``after(grid)`` called after every call, untimed (``bench_fusion_ab.py`` digests there)."""
+    spent, updates = [0.0, 0.0, 0.0], []
     for c in calls:
         t0 = time.process_time()
         if c[0] == "obs":
             grid.add_observation(c[1])
             spent[0] += time.process_time() - t0
         elif c[0] == "update":
-            n_msgs += len(tracker.update(grid, c[1]))
+            out = tracker.update(grid, c[1])
             spent[1] += time.process_time() - t0
+            updates.append(out)
         else:
             grid.close_all()
             spent[2] += time.process_time() - t0
-    return spent, n_msgs
+        if after is not None:
+            after(grid)
+    return spent, updates
+
+
+def time_calls(settings, gate_m: float, detectors, frame, calls) -> tuple[list[float], int]:
+    """One replay of the calls through a fresh grid and tracker: CPU seconds per kind."""
+    from atr_node.fusion import ContactTracker, EvidenceGrid
+
+    grid = EvidenceGrid(settings.fusion, gate_m=gate_m, detectors=detectors)
+    tracker = ContactTracker(settings.fusion, frame, gate_m=gate_m)
+    spent, updates = replay_calls(grid, tracker, calls)
+    return spent, sum(len(u) for u in updates)
 
 
 def first_touch(mb: int, huge: bool) -> float:

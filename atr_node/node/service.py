@@ -143,10 +143,7 @@ class NodeService:
                 if self.state_dir is not None:
                     self.snapshot()
         finally:
-            self._send_heartbeat()
-            self._hb_stop.set()
-            if self._hb_thread is not None:
-                self._hb_thread.join(timeout=2.0)
+            self._end_heartbeat()
         return ended
 
     def run_live(self, link: Any, *, poll_s: float = 0.2, finish_at_end: bool = False) -> None:
@@ -172,8 +169,14 @@ class NodeService:
             if self.state_dir is not None:
                 self.snapshot()
         finally:
-            self._send_heartbeat()
-            self._hb_stop.set()
+            self._end_heartbeat()
+
+    def _end_heartbeat(self) -> None:
+        """A last heartbeat (the final counters), then stop the heartbeat thread."""
+        self._send_heartbeat()
+        self._hb_stop.set()
+        if self._hb_thread is not None:
+            self._hb_thread.join(timeout=2.0)
 
     def _after_step(self, every: int) -> None:
         """After each record (or idle poll): peers' evidence, the watchdog, a snapshot when due."""
