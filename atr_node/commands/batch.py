@@ -138,13 +138,10 @@ def _calibrate(args: argparse.Namespace, settings) -> int:
     from ..batch.montecarlo import run_calibration
     from ..calibration.estimate import estimate_model
     from ..calibration.sources import images_from_paths, synthetic_images
+    from .calibrate import calibration_counts
 
     cal = settings.calibration
-    iterations = args.iterations if args.iterations is not None else cal.iterations
-    targets = args.targets if args.targets is not None else cal.targets_per_image
-    seed = args.seed if args.seed is not None else cal.seed
-    if iterations < 1 or targets < 1:
-        raise AtrError("--iterations and --targets must be >= 1")
+    iterations, targets, seed = calibration_counts(args, cal)
     if args.input:
         images = images_from_paths(args.input, settings=settings, max_images=args.max_images, pixel_m=None,
                                    range0_m=None)

@@ -75,6 +75,17 @@ class ProgressBar:
         self.stream.flush()
 
 
+def calibration_counts(args: argparse.Namespace, cal) -> tuple[int, int, int]:
+    """(iterations, targets per image, seed): the command line's, else the config's
+    ``[calibration]`` values; shared with ``atr-node batch calibrate``."""
+    iterations = args.iterations if args.iterations is not None else cal.iterations
+    targets = args.targets if args.targets is not None else cal.targets_per_image
+    seed = args.seed if args.seed is not None else cal.seed
+    if iterations < 1 or targets < 1:
+        raise AtrError("--iterations and --targets must be >= 1")
+    return iterations, targets, seed
+
+
 def run(args: argparse.Namespace) -> int:
     from ..calibration.estimate import estimate_model
     from ..calibration.plots import plot_confidence, plot_pyr
@@ -83,11 +94,7 @@ def run(args: argparse.Namespace) -> int:
 
     settings = load_settings(args.config)
     cal = settings.calibration
-    iterations = args.iterations if args.iterations is not None else cal.iterations
-    targets = args.targets if args.targets is not None else cal.targets_per_image
-    seed = args.seed if args.seed is not None else cal.seed
-    if iterations < 1 or targets < 1:
-        raise AtrError("--iterations and --targets must be >= 1")
+    iterations, targets, seed = calibration_counts(args, cal)
     seabed = args.seabed or settings.simulation.seabed
     if args.input:
         images = images_from_paths(args.input, settings=settings, max_images=args.max_images,
