@@ -327,8 +327,10 @@ class NodeSettings:
     """Live mode: the detection worker scores a synthetic unit of this many megapixels when it
     starts, so the first tiles up to that size find its buffers mapped (first touch of that
     memory cost 0.3-1.6 s on the target VM). The worker then holds those buffers (about
-    70 B per pixel: ~0.65 GB at 8 Mpx), as it would after its first tile of that size. Set it
-    to the sonar's unit size; 0 = a tiny warm-up only."""
+    70 B per pixel: ~0.65 GB at 8 Mpx), as it would after its first tile of that size. The
+    main process maps the evidence grid's memory for an open leg of such units
+    (``node/warmup.py: fusion_reserve_chunks``: ~225 MB at 8 Mpx). Set it to the sonar's unit
+    size; 0 = a tiny warm-up only, nothing reserved."""
     replay_main_scores: bool = True
     """Replay mode (``--speed max``): when three units wait for the worker, the main process
     scores the next one itself (the same pure function: the same results), so neither core

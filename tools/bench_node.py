@@ -60,13 +60,20 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         files = generate_mission(s1, Path(tmp) / "m1", seed=11)
         gen_s = time.perf_counter() - t0
+        t_start = time.perf_counter()
         svc = NodeService(s1, model=PerformanceModel.shipped(), mode="replay", workers=1)
         try:
+            # The node's start (the worker process spawned, its imports) is a fixed cost, not a
+            # pixel rate: timed apart, and the replay clocked once the worker is ready.
+            if svc.pipeline.warming is not None:
+                svc.pipeline.warming.result()
             t0 = time.perf_counter()
+            start_s = t0 - t_start
             svc.run(read_atrlog(files.atrlog))
             wall = time.perf_counter() - t0
             st = svc.pipeline.stats
-            out["throughput"] = {"tiles": st.tiles_in, "mpx": st.pixels / 1e6, "wall_s": wall,
+            out["throughput"] = {"tiles": st.tiles_in, "mpx": st.pixels / 1e6, "wall_s": wall, "start_s": start_s,
+                                 "mpx_per_s_with_start": st.pixels / 1e6 / (wall + start_s),
                                  "swath_m": sim.mission_swath_m, "tile_pings": sim.mission_tile_pings,
                                  "mpx_per_s": st.pixels / 1e6 / wall, "detect_cpu_s": st.detect_s,
                                  "fuse_s": st.fuse_s, "generate_s": gen_s}
@@ -102,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'end-to-end replay, --speed max':44s} (swath {t['swath_m']:.0f} m per side, tiles of {t['tile_pings']} pings)\n"
           f"{'':44s} {t['tiles']:5d} tiles {t['mpx']:7.1f} Mpx in {t['wall_s']:6.1f} s "
           f"= {t['mpx_per_s']:5.1f} Mpx/s (target 20)")
+    print(f"{'  with the node start (%.2f s) counted' % t['start_s']:44s} {t['mpx_per_s_with_start']:5.1f} Mpx/s")
     print(f"{'  detection (worker CPU) / fusion (main)':44s} {t['detect_cpu_s']:6.1f} s / {t['fuse_s']:6.1f} s")
     print(f"{'latency, tiles of %.1f Mpx, paced' % lat['mpx_per_tile']:44s} p50 {lat['p50_ms']:7.0f} ms, "
           f"p99 {lat['p99_ms']:7.0f} ms over {lat['samples']} tiles (target p99 < 1000 ms)")

@@ -86,7 +86,9 @@ def column_median(pixels: np.ndarray, *, valid_counts: np.ndarray | None = None)
     n = n.astype(np.int64)
     k = rows - n
     mid = (rows - 1) // 2
-    centre, below, above = np.empty(cols), np.empty(cols), np.empty(cols)
+    lo = k // 2 + (n - 1) // 2
+    hi = k // 2 + n // 2
+    centre, below, above = np.empty(cols), np.full(cols, np.nan), np.full(cols, np.nan)
     # Columns a block at a time: the block's transposed copy stays in cache and reuses memory
     # (a whole transposed copy of a large tile costs more in page faults than the partition).
     step = max(1, _MEDIAN_BLOCK_BYTES // (4 * rows))
@@ -108,10 +110,14 @@ def column_median(pixels: np.ndarray, *, valid_counts: np.ndarray | None = None)
             at[partial] = sub
         at.partition(mid, axis=1)  # in place: ``at`` is our own transposed copy
         centre[c0:c1] = at[:, mid]
-        below[c0:c1] = at[:, :mid].max(axis=1, initial=-np.inf)
-        above[c0:c1] = at[:, mid + 1:].min(axis=1, initial=np.inf)
-    lo = k // 2 + (n - 1) // 2
-    hi = k // 2 + n // 2
+        # The halves only where a rank lies in them (all-valid columns of an even count need
+        # only the upper one; columns without data none).
+        has = n[c0:c1] > 0
+        ranks = np.concatenate([lo[c0:c1][has], hi[c0:c1][has]])
+        if (ranks < mid).any():
+            below[c0:c1] = at[:, :mid].max(axis=1, initial=-np.inf)
+        if (ranks > mid).any():
+            above[c0:c1] = at[:, mid + 1:].min(axis=1, initial=np.inf)
 
     def pick(rank: np.ndarray) -> np.ndarray:
         return np.where(rank < mid, below, np.where(rank > mid, above, centre))

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..config import DetectorSettings
 from .formulas import FORMULAS, WindowMeans
-from .sat import SummedAreaTables, box
+from .sat import ColumnPairs, SummedAreaTables, box
 from .windows import WindowGeometry
 
 _BLOCK_BYTES = 3 << 17
@@ -108,6 +108,8 @@ def read_scores(sat: SummedAreaTables, geom: WindowGeometry, names: tuple[str, .
     e0, e1 = sat.columns(-geom.echo_px, anchors), sat.columns(0, anchors)
     s1 = sat.columns(geom.shadow_px, anchors)
     c0, c1 = sat.columns(geom.ctx_col0, anchors), sat.columns(geom.ctx_col1, anchors)
+    # Slices where the offsets stay constant over long runs of anchors, gathers elsewhere.
+    pairs = {"E": ColumnPairs(e0, e1, step), "S": ColumnPairs(e1, s1, step), "C": ColumnPairs(c0, c1, step)}
     area = {"E": np.int32(geom.length_px * geom.echo_px),
             "S": (geom.length_px * geom.shadow_px[js]).astype(np.int32),
             "C": ((geom.ctx_row1 - geom.ctx_row0) * (geom.ctx_col1 - geom.ctx_col0)[js]).astype(np.int32)}
@@ -142,13 +144,13 @@ def read_scores(sat: SummedAreaTables, geom: WindowGeometry, names: tuple[str, .
                 continue
             d = sat.strip(table, i0, count, step, *t_rows)
             for w in keys:
-                s[f"{table}_{w}"] = box(d, e0, e1) if w == "E" else box(d, e1, s1)
+                s[f"{table}_{w}"] = box(d, pairs[w])
                 if table == "g":
                     # Codes are 2S + 2 over the whole window (pad and no data hold 2).
                     s[f"g_{w}"] -= 2 * area[w]
         for table in ("n", "ag"):
             if f"{table}_C" in needs:
-                s[f"{table}_C"] = box(sat.strip(table, i0, count, step, *c_rows), c0, c1)
+                s[f"{table}_C"] = box(sat.strip(table, i0, count, step, *c_rows), pairs["C"])
         recip = {}
         if col_valid is not None:
             for w in windows:

@@ -63,6 +63,20 @@ class ChunkStack:
             self.slot[key] = s
         return s
 
+    def reserve(self, n: int) -> None:
+        """Room for ``n`` slots in all, its memory written now.
+
+        Slots allocated later, up to ``n``, then copy nothing (no doubling) and touch no fresh
+        page: a node reserves at start what its first tiles would otherwise page-fault in, on
+        the target VM about 1 s of the first 8-Mpx tiles' fusion (``docs/fusion.md``).
+        """
+        n = int(n)
+        if n > self.arr.shape[0]:
+            grown = np.empty((n, *self.item))
+            grown[:self.high] = self.arr[:self.high]
+            self.arr = grown
+        self.arr[self.high:n] = self.fill  # unused slots: get() fills them again when it allocates
+
     def release(self, keys: list[Key]) -> None:
         """Forget chunks and reset their slots for reuse."""
         slots = [self.slot.pop(k) for k in keys]

@@ -55,7 +55,7 @@ from .navmerge import NavMerger
 from .strip import StripAssembler, StripUnit
 from .pixelshm import SlotChannel
 from .timing import UnitTiming
-from .warmup import keep_small_pages, node_worker_init, warm_up_worker
+from .warmup import fusion_reserve_chunks, keep_small_pages, node_worker_init, warm_up_worker
 
 log = logging.getLogger(__name__)
 
@@ -149,6 +149,7 @@ class Pipeline:
         self.tracker: ContactTracker | None = None
         self.gate_m = association_gate_m(settings.fusion, settings.template)
         self.grid = EvidenceGrid(settings.fusion, gate_m=self.gate_m, detectors=self.enabled)
+        self.mode = mode
         self._bg: dict[tuple[int, str], tuple[BackgroundTracker, BackgroundTracker]] = {}
         """Per (leg, side): trackers of the background b(j) and the median m(j)."""
         self._arrival: dict[tuple[str, int], float] = {}
@@ -192,6 +193,14 @@ class Pipeline:
                                                  settings.detectors, self.enabled, settings.node.warm_up_mpx)
             else:
                 self.warming = self._pool.submit(warm_up)
+        self.reserve_fusion()
+
+    def reserve_fusion(self) -> None:
+        """Live mode: map the evidence grid's memory for units of ``node.warm_up_mpx`` now, while
+        the worker warms up, not during the first tiles (:func:`~.warmup.fusion_reserve_chunks`).
+        Called again after a restart from a snapshot replaces the grid."""
+        if self.mode == "live" and self.settings.node.warm_up_mpx > 0:
+            self.grid.reserve(fusion_reserve_chunks(self.settings))
 
     # -- input ------------------------------------------------------------------------------
     def feed(self, rec: LogRecord) -> None:

@@ -115,6 +115,7 @@ def load(state_dir: str | os.PathLike[str], pipeline: Any) -> dict[str, Any] | N
                        f"expected {FORMAT!r} v{VERSION}")
     grid, tracker_state = grid_snapshot.load(folder / "grid.npz")
     pipeline.grid = grid
+    pipeline.reserve_fusion()
     if meta["frame"] is not None:
         pipeline.frame = MissionFrame.from_dict(meta["frame"])
         pipeline.tracker = ContactTracker(pipeline.settings.fusion, pipeline.frame, gate_m=pipeline.gate_m)

@@ -26,7 +26,7 @@ import os
 
 import numpy as np
 
-from ..config import DetectorSettings, SensorSettings, TemplateSettings
+from ..config import DetectorSettings, SensorSettings, Settings, TemplateSettings
 from .detect import DetectJob, detect, warm_up, worker_init
 
 
@@ -79,3 +79,17 @@ def warm_up_worker(sensor: SensorSettings, template: TemplateSettings, detectors
                     template=template, detectors=detectors)
     detect(job)
     return rows, cols
+
+
+def fusion_reserve_chunks(settings: Settings) -> int:
+    """Chunks of the evidence grid a live node maps at start (``EvidenceGrid.reserve``).
+
+    An open leg's layer holds the chunks touched by its last ``fusion.commit_after_obs`` units
+    (older ones are committed and their slots reused), so in steady state about
+    ``commit_after_obs + 2`` units' worth: a unit of ``node.warm_up_mpx`` megapixels covers
+    ``mpx * dr_m * dx_m`` square metres, a chunk ``(cell_m * chunk_cells)^2``, plus a quarter
+    for chunks cut by the unit's edges. 2.5 thousand chunks (180 MB) for the defaults.
+    """
+    unit_m2 = settings.node.warm_up_mpx * 1e6 * settings.sensor.dr_m * settings.sensor.dx_m
+    chunk_m2 = (settings.fusion.cell_m * settings.fusion.chunk_cells) ** 2
+    return int(math.ceil(1.25 * unit_m2 / chunk_m2 * (settings.fusion.commit_after_obs + 2)))

@@ -139,3 +139,24 @@ def test_workspace_reuse_leaves_nothing_behind(rng, template, settings):
             reused = score_maps(img, template=template, detectors=s, workspace=ws, **GEOM)
             for d in DETECTORS:
                 np.testing.assert_array_equal(reused[d], fresh[d])
+
+
+@pytest.mark.parametrize("scene", ["structured", "nan_columns", "nan_rows_and_columns", "quantized"])
+@pytest.mark.parametrize("step", [1, 2])
+def test_slices_where_offsets_stay_constant_give_the_gathered_scores(scene, step, rng, template, settings,
+                                                                     monkeypatch):
+    # The structured scene reaches shadow_max (constant offsets) over its last columns; with a
+    # short enough run length those columns are read as slices, bit for bit as the gathers.
+    from atr_node.detectors import sat
+    img = np.concatenate([SCENES[scene](rng)] * 2, axis=1)  # 120 columns, 55+ past the clip
+    s = dataclasses.replace(settings, decimation=step)
+    monkeypatch.setattr(sat, "MIN_SLICE_RUN", 10 ** 9)
+    gathered = score_maps(img, template=template, detectors=s, **GEOM)
+    monkeypatch.setattr(sat, "MIN_SLICE_RUN", 4)
+    sliced = score_maps(img, template=template, detectors=s, **GEOM)
+    for d in DETECTORS:
+        np.testing.assert_array_equal(sliced[d], gathered[d])
+    if step == 1:
+        ref = reference_scores(img, template=template, detectors=settings, **GEOM)
+        for d in DETECTORS:
+            assert_scores_match(sliced[d], ref[d], 1e-6)

@@ -336,3 +336,43 @@ def test_grid_does_not_depend_on_order_or_grouping(seed):
         ref = combine_all(kept) if kept else {frozenset({T, NOT_T}): 1.0}
         assert float(m.m_t) == pytest.approx(ref.get(frozenset({T}), 0.0), abs=1e-12)
         assert float(m.m_n) == pytest.approx(ref.get(frozenset({NOT_T}), 0.0), abs=1e-12)
+
+
+def test_reserved_memory_changes_nothing_and_is_grown_into_without_copies(frame, make_grid):
+    from .conftest import mission_observations
+    obs = mission_observations(frame, tiles_per_leg=4, rows=1000)
+    plain, reserved = make_grid(commit_after_obs=2), make_grid(commit_after_obs=2)
+    reserved.reserve(400)
+    arrays = set()
+    for o in obs:
+        plain.add_observation(o)
+        reserved.add_observation(o)
+        for layer in reserved.open.values():
+            arrays.add(id(layer.chunks.arr))
+            assert layer.chunks.high <= 400  # the test is about growth inside the reserve
+    plain.close_all()
+    reserved.close_all()
+    assert len(arrays) == 1  # every leg's layer grew inside the one reserved array
+    keys = sorted(plain.chunk_keys())
+    assert sorted(reserved.chunk_keys()) == keys
+    assert np.array_equal(reserved.chunk_accumulators(keys), plain.chunk_accumulators(keys))
+    assert reserved.covered_cells() == plain.covered_cells()
+
+
+def test_chunk_stack_reserve_keeps_slots_and_fills_new_ones():
+    from atr_node.fusion.chunks import ChunkStack
+    s = ChunkStack((3,), -1.0)
+    for k in range(5):
+        slot = s.get((k, 0))  # get() may replace arr
+        s.arr[slot] = k
+    before = s.gather()
+    s.reserve(64)
+    arr = s.arr
+    assert arr.shape[0] == 64 and np.array_equal(s.gather(), before)
+    assert (arr[s.high:] == -1.0).all()
+    for k in range(5, 64):
+        slot = s.get((k, 0))
+        assert (s.arr[slot] == -1.0).all()
+    assert s.arr is arr  # no growth copy up to the reserve
+    s.reserve(10)  # smaller than held: nothing lost
+    assert s.arr is arr and np.array_equal(s.gather()[:5], before)

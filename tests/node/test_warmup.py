@@ -69,3 +69,31 @@ def test_live_worker_warms_up_at_start_replay_worker_only_imports(mode):
         assert np.isfinite(pipe.stats.detect_s)
     finally:
         pipe.close()
+
+
+def test_fusion_reserve_covers_the_steady_open_layer_of_warm_up_units():
+    from atr_node.node.warmup import fusion_reserve_chunks
+    s = Settings()
+    n = fusion_reserve_chunks(s)
+    # 8 Mpx at 0.1 m x 0.1 m = 80,000 m2 per unit; chunks of 32 x 0.5 m = 256 m2;
+    # commit_after_obs (6) + 2 units, plus a quarter for chunks cut by the edges
+    assert n == int(np.ceil(1.25 * 80_000 / 256 * 8))
+    smaller = s.replace(node=dataclasses.replace(s.node, warm_up_mpx=1.0))
+    assert fusion_reserve_chunks(smaller) == int(np.ceil(n / 8))
+
+
+@pytest.mark.parametrize("mode", ["live", "replay"])
+def test_a_live_node_maps_its_grid_memory_at_start(mode):
+    from atr_node.node.warmup import fusion_reserve_chunks
+    s = Settings()
+    s = s.replace(node=dataclasses.replace(s.node, warm_up_mpx=0.05))
+    pipe = Pipeline(s, model=PerformanceModel.shipped(), workers=0, mode=mode)
+    try:
+        spare = pipe.grid._spare
+        if mode == "live":
+            assert spare is not None and spare.shape[0] == fusion_reserve_chunks(s) > 0
+            assert (spare == -1.0).all()
+        else:
+            assert spare is None  # replay: grown on demand
+    finally:
+        pipe.close()
