@@ -4,7 +4,8 @@
 Reports, on a Rayleigh tile with NaN columns and planted targets:
 
 1. throughput (Mpx/s) of each detector alone and of all four together (``score_maps``),
-   against the time of one memory copy of the tile (``tile.copy()``);
+   against the time of one memory copy of the tile (``tile.copy()``, and ``np.copyto`` into a
+   buffer already mapped), best against best and run by run;
 2. the same work done by a plain ``scipy.ndimage`` reference (banded ``uniform_filter1d``: one
    pass per distinct window width, since the windows grow with range), its run time and its
    largest difference from ``score_maps``;
@@ -203,9 +204,16 @@ def main(argv: list[str] | None = None) -> int:
           f"OpenCV threads {cv2.getNumThreads()}, best of {args.repeat}, "
           f"{'CPU time' if args.cpu else 'wall clock'}")
 
+    # Two copies: ``tile.copy()`` (the reference of the "x copy" column: a new tile, as a
+    # node receives it, in memory the kernel maps on first touch) and ``np.copyto`` into a
+    # buffer already mapped (the bare memory bandwidth, about 2x faster on this VM).
     t_copy, _ = best_time(lambda: x.copy(), max(args.repeat, 3))
+    dst = np.empty_like(x)
+    t_copyto, _ = best_time(lambda: np.copyto(dst, x), max(args.repeat, 3))
     print(f"\n{'what':<36}{'time ms':>10}{'Mpx/s':>10}{'x copy':>9}")
     print(f"{'memory copy of the tile':<36}{t_copy * 1e3:>10.1f}{mpx / t_copy:>10.0f}{1.0:>9.1f}")
+    print(f"{'  the same into a mapped buffer':<36}{t_copyto * 1e3:>10.1f}{mpx / t_copyto:>10.0f}"
+          f"{t_copyto / t_copy:>9.1f}")
     ws = Workspace()  # buffers reused from tile to tile, as in the node
     runs = [(d, (d,), ws) for d in DETECTOR_NAMES] + [("all four", DETECTOR_NAMES, ws),
                                                        ("all four, no workspace", DETECTOR_NAMES, None)]
@@ -216,6 +224,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{'score_maps ' + label:<36}{t * 1e3:>10.1f}{mpx / t:>10.1f}{t / t_copy:>9.1f}")
         if label == "all four":  # copied: the maps live in the workspace, reused by the next call
             t_all, full = t, {d: m.copy() for d, m in maps.items()}
+    # This VM's speed drifts by up to 40 % from minute to minute, so a best copy and a best
+    # score_maps taken minutes apart can come from different phases: the ratio is also taken
+    # pair by pair (a best-of-3 copy just before each run of all four), median over the pairs.
+    ratios, ratios_to = [], []
+    for _ in range(args.repeat):
+        tc, _ = best_time(lambda: x.copy(), 3)
+        tt, _ = best_time(lambda: np.copyto(dst, x), 3)
+        ta, _ = best_time(lambda: score_maps(x, template=template, detectors=base, workspace=ws, **GEO), 1)
+        ratios.append(ta / tc)
+        ratios_to.append(ta / tt)
+    print(f"{'all four / copy, run by run':<36}{'':>20}{float(np.median(ratios)):>9.1f}"
+          f"   (median of {len(ratios)} pairs, {min(ratios):.1f}-{max(ratios):.1f}; "
+          f"{float(np.median(ratios_to)):.1f} against the copy into a mapped buffer)")
     rc = 0
     if not args.no_scipy:
         t_ref, ref = best_time(lambda: scipy_scores(x, template, base), 1)
