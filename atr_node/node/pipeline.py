@@ -149,7 +149,6 @@ class Pipeline:
         self.tracker: ContactTracker | None = None
         self.gate_m = association_gate_m(settings.fusion, settings.template)
         self.grid = EvidenceGrid(settings.fusion, gate_m=self.gate_m, detectors=self.enabled)
-        self.mode = mode
         self._bg: dict[tuple[int, str], tuple[BackgroundTracker, BackgroundTracker]] = {}
         """Per (leg, side): trackers of the background b(j) and the median m(j)."""
         self._arrival: dict[tuple[str, int], float] = {}
