@@ -217,13 +217,6 @@ class ColumnPairs:
     """
 
     def __init__(self, col0: ColumnIndex, col1: ColumnIndex, step: int = 1, min_run: int | None = None) -> None:
-        if isinstance(col0, slice) and isinstance(col1, slice):
-            n0, n1 = len(range(col0.start, col0.stop, col0.step or 1)), len(range(col1.start, col1.stop, col1.step or 1))
-            if n0 != n1:
-                raise ValueError(f"ColumnPairs: {n0} and {n1} columns")
-            self.n = n0
-            self.pieces: tuple[tuple[slice, ColumnIndex, ColumnIndex], ...] = ((slice(0, n0), col0, col1),)
-            return
         idx0, idx1 = _as_index(col0), _as_index(col1)
         if idx0.size != idx1.size:
             raise ValueError(f"ColumnPairs: {idx0.size} and {idx1.size} columns")
@@ -243,8 +236,8 @@ class ColumnPairs:
                 pieces[-1] = (pieces[-1][0], b, False)  # merge short runs into one gather
             else:
                 pieces.append((a, b, as_slices))
-        self.pieces = tuple((slice(a, b),) + tuple(_piece(i, a, b, step, sl) for i in (idx0, idx1))
-                            for a, b, sl in pieces)
+        self.pieces: tuple[tuple[slice, ColumnIndex, ColumnIndex], ...] = tuple(
+            (slice(a, b),) + tuple(_piece(i, a, b, step, sl) for i in (idx0, idx1)) for a, b, sl in pieces)
 
     @property
     def gathered(self) -> int:
