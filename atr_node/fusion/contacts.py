@@ -35,6 +35,50 @@ from .mass import closed_form
 
 STATES = ("new", "update", "withdrawn")
 _OFF = np.int64(1 << 30)
+_CHUNK_OFF = 1 << 20
+"""Offset of chunk coordinates in a chunk code (chunks within +-2^20 of the origin)."""
+
+
+def _chunk_code(key: tuple[int, int]) -> int:
+    """A chunk's code: increasing in (cy, cx) order, as ``sorted`` orders chunk keys."""
+    return (key[0] + _CHUNK_OFF) * (2 * _CHUNK_OFF) + (key[1] + _CHUNK_OFF)
+
+
+@dataclass(eq=False)
+class _Component:
+    """One contact candidate of a region (the region itself, or one of its split groups)."""
+
+    key: tuple
+    """Order of the full extraction: (0, first cell code) for a region, (1, first cell code,
+    group) for a split group beyond the first."""
+    ce: float
+    cn: float
+    sigma: float
+    bel: float
+    mn: float
+    mth: float
+    iy: int
+    ix: int
+    """Peak cell."""
+    dets: list[int]
+    """Its detections (indices into ``grid.detections``, ascending)."""
+    fields: dict | None = None
+    seen: "Contact | None" = None
+    """The live contact it was last found equal to (or published as): unchanged since, it is
+    skipped without comparing."""
+
+
+@dataclass(eq=False)
+class _Region:
+    cells: tuple[np.ndarray, ...]
+    """(iy, ix, bel, mn, mth, code), in the full extraction's order (``code``: chunk code x
+    cells per chunk + index in the chunk's cached cells)."""
+    keys: set
+    comps: list
+
+    @property
+    def code(self) -> np.ndarray:
+        return self.cells[5]
 
 
 @dataclass(frozen=True)
@@ -148,8 +192,11 @@ def label_graph(iy: np.ndarray, ix: np.ndarray) -> tuple[int, np.ndarray]:
 class ContactTracker:
     """Extracts contacts from an :class:`EvidenceGrid` and keeps their ids stable."""
 
-    def __init__(self, fusion: FusionSettings, frame: MissionFrame, *, gate_m: float) -> None:
+    def __init__(self, fusion: FusionSettings, frame: MissionFrame, *, gate_m: float, incremental: bool = True) -> None:
         self.fusion, self.frame, self.gate_m = fusion, frame, float(gate_m)
+        self.incremental = bool(incremental)
+        """Re-label only the regions near changed chunks (:meth:`update`); False: every region
+        at every update (:meth:`_update_full`, the reference the tests compare against)."""
         self.next_id = 1
         self.live: dict[int, Contact] = {}
         self.history: dict[int, Contact] = {}
@@ -158,9 +205,23 @@ class ContactTracker:
         self._cells: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
         self._groups: dict[bytes, tuple[int, np.ndarray]] = {}
         """Leader grouping of a region's detections, by their positions and confidences (see _split)."""
+        self._reset_regions()
 
-    def _refresh(self, grid: EvidenceGrid) -> None:
+    def _reset_regions(self) -> None:
+        """Forget the incremental state (regions, components, detection index)."""
+        self._regions: dict[int, _Region] = {}
+        self._comps: dict[int, _Component] = {}
+        self._chunk_regions: dict[tuple[int, int], set[int]] = {}
+        self._next_region = 0
+        self._det_chunks: dict[tuple[int, int], list[int]] = {}
+        """Grid detections by the chunk of their cell (indices into ``grid.detections``)."""
+        self._det_cells = np.zeros((0, 2), dtype=np.int64)
+        self._n_det = 0
+
+    def _refresh(self, grid: EvidenceGrid) -> list[tuple[int, int]]:
+        """Re-evaluate the cells of the chunks changed since the last update; returns those chunks."""
         keys = grid.changed_since(self._stamp)
+        changed = keys
         self._stamp = grid.stamp
         # chunks without T evidence have Bel(T) = 0: dropped without evaluating the layer terms
         with_t = grid.has_t_evidence(keys)
@@ -168,14 +229,14 @@ class ContactTracker:
             self._cells.pop(key, None)
         keys = [k for k, w in zip(keys, with_t) if w]
         if not keys:
-            return
+            return changed
         acc = grid.chunk_accumulators(keys)
         has_t = (acc[:, 0] < 0.0).any(axis=1)  # else no T evidence: Bel(T) = 0 everywhere
         for key in (k for k, h in zip(keys, has_t) if not h):
             self._cells.pop(key, None)
         rows = np.flatnonzero(has_t)
         if not rows.size:
-            return
+            return changed
         # one closed_form over every chunk, on contiguous copies: element for element the
         # values of one call per chunk (the same contiguous kernels)
         m = closed_form(np.ascontiguousarray(acc[rows, 0]), np.ascontiguousarray(acc[rows, 1]))
@@ -191,9 +252,20 @@ class ContactTracker:
             sel = c[a:b]
             self._cells[key] = (key[0] * n + sel // n, key[1] * n + sel % n, m.m_t[i, sel], m.m_n[i, sel],
                                 m.m_theta[i, sel])
+        return changed
 
     def update(self, grid: EvidenceGrid, t: float) -> list[Contact]:
         """Re-extract contacts after new evidence; return the messages to publish."""
+        if not self.incremental:
+            return self._update_full(grid, t)
+        changed = self._refresh(grid)
+        self._index_detections(grid)
+        self._relabel(grid, changed)
+        return self._publish(grid, t)
+
+    def _update_full(self, grid: EvidenceGrid, t: float) -> list[Contact]:
+        """:meth:`update` re-labelling every region (the reference: what the incremental update
+        reproduces message for message)."""
         self._refresh(grid)
         # in chunk order, not cache insertion order: a tracker restored from a snapshot rebuilds
         # its cache in another order, and the sums below must not change in their last bits (nor
@@ -275,21 +347,226 @@ class ContactTracker:
             self.history[c.id] = c
         return out
 
+    # -- incremental update ------------------------------------------------------------------
+    # A region's cells, detections, split and statistics depend on its own cells only, and the
+    # cells of a chunk change only when the grid marks the chunk changed (legs, T and notT
+    # evidence alike). A region can change only if it has cells in a changed chunk or in one
+    # of its 8 neighbours (a new cell there may join it to others): those regions are
+    # dissolved and their cells labelled again with the changed chunks' cells; every other
+    # region, and its components, is kept as it was. Components are ordered as the full
+    # extraction numbers them (by first cell in chunk order, split groups after), and matched
+    # to the live contacts over all of them, so the messages are the same, in the same order
+    # (``tests/fusion/test_contacts.py`` replays missions both ways).
+
+    def _index_detections(self, grid: EvidenceGrid) -> None:
+        """Index the grid's new detections by chunk (``grid.detections`` only grows)."""
+        dets = grid.detections
+        if len(dets) < self._n_det:  # not the grid this index was built on
+            self._det_chunks, self._det_cells, self._n_det = {}, np.zeros((0, 2), dtype=np.int64), 0
+        if len(dets) == self._n_det:
+            return
+        new = dets[self._n_det:]
+        dy, dx = grid.cell_of(np.array([r.east_m for r in new]), np.array([r.north_m for r in new]))
+        n = grid.n
+        for i, key in enumerate(zip((dy // n).tolist(), (dx // n).tolist()), start=self._n_det):
+            self._det_chunks.setdefault(key, []).append(i)
+        self._det_cells = np.concatenate([self._det_cells, np.column_stack([dy, dx])])
+        self._n_det = len(dets)
+
+    def _relabel(self, grid: EvidenceGrid, changed: list[tuple[int, int]]) -> None:
+        """Dissolve the regions near ``changed`` chunks and label their cells again."""
+        if not changed:
+            return
+        n, nn = grid.n, grid.nn
+        changed_set = set(changed)
+        dissolve: set[int] = set()
+        owners = self._chunk_regions
+        if owners:
+            near = {(cy + dy, cx + dx) for cy, cx in changed_set for dy in (-1, 0, 1) for dx in (-1, 0, 1)}
+            for k in near & owners.keys():
+                dissolve |= owners[k]
+        stale = np.array(sorted(_chunk_code(k) for k in changed_set), dtype=np.int64)
+        parts: list[tuple[np.ndarray, ...]] = []
+        keys: set[tuple[int, int]] = set(changed_set)
+        for rid in dissolve:
+            reg = self._regions.pop(rid)
+            for comp in reg.comps:
+                self._comps.pop(id(comp), None)
+            for k in reg.keys:
+                owners = self._chunk_regions[k]
+                owners.discard(rid)
+                if not owners:
+                    del self._chunk_regions[k]
+            keys |= reg.keys
+            if reg.keys.isdisjoint(changed_set):
+                parts.append(reg.cells)
+                continue
+            cc = reg.code // nn  # cells of changed chunks are taken from the cache below
+            keep = stale[np.minimum(np.searchsorted(stale, cc), stale.size - 1)] != cc
+            parts.append(tuple(a[keep] for a in reg.cells))
+        for k in changed_set:
+            c = self._cells.get(k)
+            if c is not None and c[0].size:
+                parts.append((*c, _chunk_code(k) * nn + np.arange(c[0].size, dtype=np.int64)))
+        if not parts:
+            return
+        iy, ix, bel, mn, mth, code = (np.concatenate([p[i] for p in parts]) for i in range(6))
+        if not iy.size:
+            return
+        order = np.argsort(code)  # chunk order, then the cache's order within a chunk: the full order
+        iy, ix, bel, mn, mth, code = iy[order], ix[order], bel[order], mn[order], mth[order], code[order]
+        n_reg, reg = label_cells(iy, ix)
+        # detections of these cells: those indexed under the chunks involved
+        cand = [i for k in keys for i in self._det_chunks.get(k, ())]
+        det_idx = np.array(sorted(cand), dtype=np.int64)
+        det_reg = np.full(det_idx.size, -1, dtype=np.int64)
+        if det_idx.size:
+            cell_code = (iy + _OFF) * (2 * _OFF) + (ix + _OFF)
+            dc = self._det_cells[det_idx]
+            want = (dc[:, 0] + _OFF) * (2 * _OFF) + (dc[:, 1] + _OFF)
+            o = np.argsort(cell_code)
+            pos = np.minimum(np.searchsorted(cell_code[o], want), cell_code.size - 1)
+            hit = cell_code[o][pos] == want
+            det_reg = np.where(hit, reg[o[pos]], -1)
+            det_idx, det_reg = det_idx[hit], det_reg[hit]
+        extras: list[tuple[int, int]] = []
+        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, det_idx, extras)
+        # per-component statistics: the full extraction's expressions on a subset of its cells
+        # (each component's cells in the same order: the same sums, bit for bit)
+        e, nn_ = grid.cell_centre(iy, ix)
+        w = np.bincount(lab, weights=bel, minlength=n_comp)
+        ce = np.bincount(lab, weights=bel * e, minlength=n_comp) / np.maximum(w, 1e-300)
+        cn = np.bincount(lab, weights=bel * nn_, minlength=n_comp) / np.maximum(w, 1e-300)
+        var = np.bincount(lab, weights=bel * ((e - ce[lab]) ** 2 + (nn_ - cn[lab]) ** 2), minlength=n_comp)
+        sigma = np.sqrt(0.5 * var / np.maximum(w, 1e-300) + grid.cell_m ** 2 / 12.0)
+        top = np.full(n_comp, -np.inf)
+        np.maximum.at(top, lab, bel)
+        at_top = np.flatnonzero(bel == top[lab])
+        peak = np.zeros(n_comp, dtype=np.int64)
+        np.maximum.at(peak, lab[at_top], at_top)
+        d_order = np.argsort(det_lab, kind="stable")
+        d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1)).tolist()
+        r_order = np.argsort(reg, kind="stable")
+        r_bounds = np.searchsorted(reg[r_order], np.arange(n_reg + 1)).tolist()
+        first = code[r_order[r_bounds[:-1]]].tolist() if n_reg else []  # each region's first cell
+        comps = []
+        for j in range(n_comp):
+            p = int(peak[j])
+            if j < n_reg:
+                key: tuple = (0, first[j])
+            else:
+                r, g = extras[j - n_reg]
+                key = (1, first[r], g)
+            comps.append(_Component(key, float(ce[j]), float(cn[j]), float(sigma[j]), float(bel[p]), float(mn[p]),
+                                    float(mth[p]), int(iy[p]), int(ix[p]),
+                                    det_idx[d_order[d_bounds[j]:d_bounds[j + 1]]].tolist()))
+        by_region: list[list[_Component]] = [[comps[j]] for j in range(n_reg)]
+        for c, (r, _g) in enumerate(extras, start=n_reg):
+            by_region[r].append(comps[c])
+        for j in range(n_reg):
+            cells = r_order[r_bounds[j]:r_bounds[j + 1]]
+            rid = self._next_region
+            self._next_region += 1
+            ckeys = {(cc // (2 * _CHUNK_OFF) - _CHUNK_OFF, cc % (2 * _CHUNK_OFF) - _CHUNK_OFF)
+                     for cc in np.unique(code[cells] // nn).tolist()}
+            mine = by_region[j]
+            self._regions[rid] = _Region((iy[cells], ix[cells], bel[cells], mn[cells], mth[cells], code[cells]),
+                                         ckeys, mine)
+            for k in ckeys:
+                self._chunk_regions.setdefault(k, set()).add(rid)
+            for comp in mine:
+                self._comps[id(comp)] = comp
+
+    def _publish(self, grid: EvidenceGrid, t: float) -> list[Contact]:
+        """Match the components to the live contacts and return the messages (as the full
+        extraction does, component by component in its order)."""
+        comps = sorted(self._comps.values(), key=lambda c: c.key)
+        n_comp = len(comps)
+        pairs = []
+        if self.live and n_comp:
+            cids = list(self.live)
+            ce = np.array([c.ce for c in comps])
+            cn = np.array([c.cn for c in comps])
+            le = np.array([self.live[c].east_m for c in cids])
+            ln = np.array([self.live[c].north_m for c in cids])
+            # the pairs within the gate, without the (live x components) matrix: candidates from
+            # a sort by east, then the full extraction's element-wise hypot on them
+            by_e = np.argsort(ce, kind="stable")
+            se = ce[by_e]
+            reach = self.gate_m * (1.0 + 1e-6) + 1e-9  # wider than the gate: rounding cannot lose a pair
+            lo = np.searchsorted(se, le - reach, side="left")
+            hi = np.searchsorted(se, le + reach, side="right")
+            cnt = hi - lo
+            ii = np.repeat(np.arange(le.size), cnt)
+            jj = by_e[np.repeat(lo - np.cumsum(cnt) + cnt, cnt) + np.arange(int(cnt.sum()))]
+            d = np.hypot(ce[jj] - le[ii], cn[jj] - ln[ii])
+            ok = d <= self.gate_m
+            pairs = list(zip(d[ok].tolist(), [cids[i] for i in ii[ok].tolist()], jj[ok].tolist()))
+        pairs.sort()
+        comp_id: dict[int, int] = {}
+        used: set[int] = set()
+        for _, cid, j in pairs:
+            if cid not in used and j not in comp_id:
+                comp_id[j] = cid
+                used.add(cid)
+        out: list[Contact] = []
+        for j, comp in enumerate(comps):
+            cid = comp_id.get(j)
+            if cid is not None and comp.seen is not None and self.live.get(cid) is comp.seen:
+                continue  # the contact it was compared with last time, and it has not changed since
+            comp.seen = None
+            if cid is None and comp.bel < self.fusion.report_bel:
+                continue
+            state = "update" if cid is not None else "new"
+            fields = comp.fields
+            if fields is None:
+                legs = tuple(grid.legs_at(comp.iy, comp.ix))
+                dets = [grid.detections[i] for i in comp.dets]
+                names = {r.detector for r in dets}
+                fields = comp.fields = dict(
+                    east_m=comp.ce, north_m=comp.cn, sigma_m=comp.sigma, bel=comp.bel, pl=float(1.0 - comp.mn),
+                    m_theta=comp.mth, looks=len(legs), detections=len(dets),
+                    detectors=tuple(d for d in grid.detectors if d in names), legs=legs)
+            if state == "update":
+                old = self.live[cid]
+                if all(getattr(old, k) == v for k, v in fields.items()):
+                    comp.seen = old
+                    continue
+            else:
+                cid, self.next_id = self.next_id, self.next_id + 1
+            lat, lon = self.frame.to_latlon(comp.ce, comp.cn)
+            c = Contact(id=cid, state=state, t=float(t), lat_deg=float(lat), lon_deg=float(lon), **fields)
+            self.live[cid] = c
+            comp.seen = c
+            out.append(c)
+        for cid in sorted(set(self.live) - set(comp_id.values()) - {c.id for c in out}):
+            old = self.live.pop(cid)
+            m = grid.masses_at(old.east_m, old.north_m)
+            out.append(dataclasses.replace(old, state="withdrawn", t=float(t), bel=float(m.m_t),
+                                           pl=float(1.0 - m.m_n), m_theta=float(m.m_theta)))
+        for c in out:
+            self.history[c.id] = c
+        return out
+
     def _split(self, grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, reg: np.ndarray, n_reg: int,
-               det_reg: np.ndarray) -> tuple[np.ndarray, int, np.ndarray]:
+               det_reg: np.ndarray, det_idx: np.ndarray | None = None,
+               extras: list[tuple[int, int]] | None = None) -> tuple[np.ndarray, int, np.ndarray]:
         """Split belief regions that hold several distinct objects.
 
         A region is a union of association gates around detections, so two objects a few
         metres apart share one. Its detections are grouped by single linkage within the gate;
         each cell goes to the nearest group (by its confidence-weighted mean position), and
         each group is a contact. Returns (cell labels, number of contacts, detection labels).
+
+        ``det_reg`` labels the grid's detections ``det_idx`` (ascending; None: all of them).
+        ``extras``, if given, receives (region, group) of each label beyond ``n_reg``, in order.
         """
         lab = reg.copy()
         det_lab = det_reg.copy()
         n_comp = n_reg
         if not n_reg or not (det_reg >= 0).any():
             return lab, n_comp, det_lab
-        dets = grid.detections
+        dets = grid.detections if det_idx is None else [grid.detections[i] for i in det_idx.tolist()]
         de = np.array([r.east_m for r in dets])
         dn = np.array([r.north_m for r in dets])
         conf = np.array([max(r.confidence, 1e-12) for r in dets])
@@ -324,7 +601,14 @@ class ContactTracker:
             lab[cells] = new_labels[nearest]
             det_lab[members] = new_labels[g]
             n_comp += ng - 1
-        self._groups = kept
+            if extras is not None:
+                extras.extend((j, k) for k in range(1, ng))
+        if det_idx is None:
+            self._groups = kept
+        else:  # a subset of the regions: keep the others' groupings too (bounded)
+            if len(self._groups) > 4 * (len(self._regions) + len(kept)) + 256:
+                self._groups = {}
+            self._groups.update(kept)
         return lab, n_comp, det_lab
 
     @staticmethod
@@ -353,3 +637,4 @@ class ContactTracker:
         self.live = {int(m["id"]): Contact.from_message(m) for m in state["live"]}
         self.history = {int(m["id"]): Contact.from_message(m) for m in state["history"]}
         self._stamp, self._cells, self._groups = 0, {}, {}
+        self._reset_regions()

@@ -59,15 +59,20 @@ from .warmup import fusion_reserve_chunks, keep_small_pages, node_worker_init, w
 
 log = logging.getLogger(__name__)
 
-MAIN_SCORES_AT = {"replay": 3}
-"""Units not yet scored by the worker at which the main process scores the next one itself
-(``node.replay_main_scores``), per mode. Replay (throughput): three keeps the worker busy
-while the main process scores (it still has two queued); two stole a third of the units and
-made the main process the bottleneck (median of 5 runs of the 32-Mpx mission: 17.9 Mpx/s at
-3, 17.3 at 2, 16.9 off). Not live: tried at one (the second side of a ping scored by the main
-process instead of queueing behind the first), the worst 8-Mpx tile latency went from 0.89 s
-to 1.02 s: the main process then scores and fuses both sides in series, and both cores
-scoring at once slowed each other (``tools/latency_breakdown.py``)."""
+REPLAY_INFLIGHT_MPX = 24.0
+"""Replay: megapixels of the units in flight (submitted, not yet fused) beyond which
+:meth:`Pipeline.feed` stops ingesting until the oldest unit is fused (back-pressure; at least
+:data:`REPLAY_INFLIGHT_MIN` units). With ``node.replay_main_scores`` the main process does not
+sit idle there: it *steals* the newest unit the worker has not started and scores it itself
+(:meth:`Pipeline._steal`), and does the same while draining at the end, so each core scores
+only what the other would have left it waiting for. A deep queue lets the main process run
+ahead on ingest and fusion while the worker scores (at a limit of 4 units instead, the main
+process stole a median of 6 of the 32-Mpx mission's 24 units, and of 3 at 16); 24 Mpx bound
+the memory it holds: the pixels in shared memory and in the units, about 200 MB."""
+
+REPLAY_INFLIGHT_MIN = 3
+"""Units in flight kept at least (the worker holds two it cannot give back: the one it scores
+and the next, already in the executor's call queue)."""
 
 NAV_KEEP_S = 300.0
 """INS fixes kept before the ping time of the last tile released (tiles arrive seconds late)."""
@@ -152,7 +157,9 @@ class Pipeline:
         self._bg: dict[tuple[int, str], tuple[BackgroundTracker, BackgroundTracker]] = {}
         """Per (leg, side): trackers of the background b(j) and the median m(j)."""
         self._arrival: dict[tuple[str, int], float] = {}
-        self._inflight: deque[tuple[StripUnit, PerformanceModel, Future | DetectResult]] = deque()
+        self._inflight: deque[tuple[StripUnit, PerformanceModel, Future, DetectJob]] = deque()
+        self._inflight_px = 0
+        """Pixels of the units in flight (replay back-pressure)."""
         self._timing: dict[int, UnitTiming] = {}
         """id(unit) -> its stage times, from submit to fuse."""
         self.sweep: dict[str, tuple[float, ...]] | None = None
@@ -167,8 +174,8 @@ class Pipeline:
         # compact memory first, which doubled the node's time on the target VM (warmup.py)
         keep_small_pages()
         self._pool: ProcessPoolExecutor | None = None
-        self._main_scores_at = 0
-        """Units pending in the worker at which this process scores the next one (0 = never)."""
+        self._steals = False
+        """Replay: this process scores units the worker has not started rather than wait (``_steal``)."""
         self.warming: Future | None = None
         """The worker's warm-up (done when the worker is ready for full-size tiles)."""
         self.channel: SlotChannel | None = None
@@ -178,9 +185,8 @@ class Pipeline:
             self._pool = ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
                                              initializer=node_worker_init)
             self.channel = SlotChannel(self._pool)
-            if settings.node.replay_main_scores:
-                self._main_scores_at = MAIN_SCORES_AT.get(mode, 0)
-            if self._main_scores_at:
+            self._steals = mode == "replay" and settings.node.replay_main_scores
+            if self._steals:
                 import cv2
 
                 cv2.setNumThreads(1)  # the other core is the worker's
@@ -195,10 +201,14 @@ class Pipeline:
         self.reserve_fusion()
 
     def reserve_fusion(self) -> None:
-        """Live mode: map the evidence grid's memory for units of ``node.warm_up_mpx`` now, while
-        the worker warms up, not during the first tiles (:func:`~.warmup.fusion_reserve_chunks`).
-        Called again after a restart from a snapshot replaces the grid."""
-        if self.mode == "live" and self.settings.node.warm_up_mpx > 0:
+        """Map the evidence grid's memory for units of ``node.warm_up_mpx`` now, while the worker
+        process starts, not during the first tiles (:func:`~.warmup.fusion_reserve_chunks`).
+        Live, for the first tiles' latency; in replay, for throughput: the grid would otherwise
+        page-fault its layer in and copy it each time it doubles, while the worker waits for
+        units (32-Mpx mission, 5 interleaved pairs of ``tools/bench_node.py`` runs: median
+        23.7 Mpx/s against 20.4, the node's start 0.27 s against 0.25). Called again after a
+        restart from a snapshot replaces the grid."""
+        if self.settings.node.warm_up_mpx > 0:
             self.grid.reserve(fusion_reserve_chunks(self.settings))
 
     # -- input ------------------------------------------------------------------------------
@@ -374,30 +384,53 @@ class Pipeline:
             timing.mark_done()
             self._fuse(unit, model, res)
             return
-        if self._main_scores_at and sum(not f.done() for _, _, f in self._inflight) >= self._main_scores_at:
-            # the worker is busy (see MAIN_SCORES_AT): rather than queue behind it, this process
-            # scores this unit itself (detect is a pure function: the same result)
-            timing.queued = time.monotonic()
-            fut = Future()
-            fut.set_result(detect(job))
-            timing.mark_done(fut)
-            self.stats.units_main += 1
-        else:
-            fut = self.channel.submit(job)
-            timing.queued = time.monotonic()
-            fut.add_done_callback(timing.mark_done)
-        self._inflight.append((unit, model, fut))
+        fut = self.channel.submit(job)
+        timing.queued = time.monotonic()
+        fut.add_done_callback(timing.mark_done)
+        self._inflight.append((unit, model, fut, job))
+        self._inflight_px += job.pixels.size
         if self.mode == "replay":
-            while len(self._inflight) > limit:
+            while len(self._inflight) > REPLAY_INFLIGHT_MIN and self._inflight_px > REPLAY_INFLIGHT_MPX * 1e6 \
+                    or len(self._inflight) > 4 * limit:
                 self._collect_one()
         self._collect(block=False)
 
     def _collect_one(self) -> None:
-        unit, model, fut = self._inflight.popleft()
+        """Fuse the oldest unit in flight, waiting for its result (replay: stealing meanwhile)."""
+        while self._steals and not self._inflight[0][2].done() and self._steal():
+            pass
+        unit, model, fut, job = self._inflight.popleft()
+        self._inflight_px -= job.pixels.size
         res = fut.result()
         if self.channel is not None:
             self.channel.done(fut)
         self._fuse(unit, model, res)
+
+    def _steal(self) -> bool:
+        """Score the newest unit the worker has not started in this process; False if none.
+
+        The worker takes jobs in order, so the units it has not started are the newest ones:
+        the first, from the end, whose future cannot be cancelled (running, or already in the
+        executor's call queue) ends the search. :func:`detect` is a pure function: the
+        result is the same, whoever computes it."""
+        for i in range(len(self._inflight) - 1, -1, -1):
+            unit, model, fut, job = self._inflight[i]
+            if fut.done():
+                continue  # done by the worker, or stolen already
+            if not fut.cancel():
+                return False
+            if self.channel is not None:
+                self.channel.done(fut)  # its slot is free again
+            timing = self._timing.get(id(unit))
+            res = detect(job)
+            mine: Future = Future()
+            mine.set_result(res)
+            if timing is not None:
+                timing.mark_done()
+            self._inflight[i] = (unit, model, mine, job)
+            self.stats.units_main += 1
+            return True
+        return False
 
     def _collect(self, *, block: bool) -> None:
         while self._inflight and (block or self._inflight[0][2].done()):

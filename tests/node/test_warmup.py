@@ -83,17 +83,18 @@ def test_fusion_reserve_covers_the_steady_open_layer_of_warm_up_units():
 
 
 @pytest.mark.parametrize("mode", ["live", "replay"])
-def test_a_live_node_maps_its_grid_memory_at_start(mode):
+def test_a_node_maps_its_grid_memory_at_start(mode):
     from atr_node.node.warmup import fusion_reserve_chunks
     s = Settings()
     s = s.replace(node=dataclasses.replace(s.node, warm_up_mpx=0.05))
     pipe = Pipeline(s, model=PerformanceModel.shipped(), workers=0, mode=mode)
+    off = Pipeline(s.replace(node=dataclasses.replace(s.node, warm_up_mpx=0.0)), model=PerformanceModel.shipped(),
+                   workers=0, mode=mode)
     try:
         spare = pipe.grid._spare
-        if mode == "live":
-            assert spare is not None and spare.shape[0] == fusion_reserve_chunks(s) > 0
-            assert (spare == -1.0).all()
-        else:
-            assert spare is None  # replay: grown on demand
+        assert spare is not None and spare.shape[0] == fusion_reserve_chunks(s) > 0
+        assert (spare == -1.0).all()
+        assert getattr(off.grid, "_spare", None) is None  # warm_up_mpx = 0: grown on demand
     finally:
         pipe.close()
+        off.close()
