@@ -55,7 +55,7 @@ from .navmerge import NavMerger
 from .strip import StripAssembler, StripUnit
 from .pixelshm import SlotChannel
 from .timing import UnitTiming
-from .warmup import fusion_reserve_chunks, keep_small_pages, node_worker_init, warm_up_worker
+from .warmup import fusion_reserve_chunks, keep_freed_memory, keep_small_pages, node_worker_init, warm_up_worker
 
 log = logging.getLogger(__name__)
 
@@ -173,6 +173,7 @@ class Pipeline:
         # the node allocates tens of MB per tile: huge-page advice makes each fresh page fault
         # compact memory first, which doubled the node's time on the target VM (warmup.py)
         keep_small_pages()
+        keep_freed_memory()
         self._pool: ProcessPoolExecutor | None = None
         self._steals = False
         """Replay: this process scores units the worker has not started rather than wait (``_steal``)."""
@@ -314,7 +315,8 @@ class Pipeline:
             geom = window_geometry(tile.ranges_m[-1:], dr_m=tile.dr_m, dx_m=tile.dx_m,
                                    altitude_m=float(np.median(tile.nav.altitude_m)), template=self.settings.template)
             extra = int(math.ceil(self.settings.node.tile_margin_m / tile.dx_m))
-            self.strips = StripAssembler(required_margin(geom)[0] + extra, max_gap_s=self.settings.node.nav_max_gap_s)
+            self.strips = StripAssembler(required_margin(geom)[0] + extra, max_gap_s=self.settings.node.nav_max_gap_s,
+                                         alloc=self._unit_pixels)
         self.tiles_merged += 1
         self.mission = tile.mission  # evidence deltas name their mission (atr_node.node.exchange)
         if self.online is not None:
@@ -328,6 +330,14 @@ class Pipeline:
         for unit in self.strips.push(tile):
             self._submit(unit)
 
+    def _unit_pixels(self, shape: tuple[int, int]) -> np.ndarray:
+        """Memory for a unit's pixels: a shared-memory slot when units go to the worker in
+        slots (the strip writes the unit there once, and the slot travels without a copy),
+        ordinary memory with no worker, or when ``on_fused`` may keep the pixels."""
+        if self.channel is not None and self.on_fused is None:
+            return self.channel.alloc(shape, np.float32)
+        return np.empty(shape, np.float32)
+
     def _current_model(self) -> PerformanceModel:
         if self.online is not None:
             self.model = self.online.model_for(self.tiles_merged)
@@ -340,6 +350,8 @@ class Pipeline:
         if self.mode == "live":
             depth = len(self._inflight)
             if depth >= 2 * limit:
+                if self.channel is not None:
+                    self.channel.discard(unit.pixels)
                 self.stats.tiles_dropped += len(unit.completed)
                 log.warning("dropped leg %d %s core of %d rows: %d units in flight", unit.leg, unit.side,
                             unit.core_rows, depth)
@@ -402,9 +414,11 @@ class Pipeline:
         unit, model, fut, job = self._inflight.popleft()
         self._inflight_px -= job.pixels.size
         res = fut.result()
-        if self.channel is not None:
-            self.channel.done(fut)
-        self._fuse(unit, model, res)
+        try:
+            self._fuse(unit, model, res)
+        finally:
+            if self.channel is not None:
+                self.channel.done(fut)  # the unit's pixels (their slot) are no longer read
 
     def _steal(self) -> bool:
         """Score the newest unit the worker has not started in this process; False if none.
@@ -419,11 +433,11 @@ class Pipeline:
                 continue  # done by the worker, or stolen already
             if not fut.cancel():
                 return False
+            mine: Future = Future()
             if self.channel is not None:
-                self.channel.done(fut)  # its slot is free again
+                self.channel.rekey(fut, mine)  # the slot goes with the unit, to its fusion
             timing = self._timing.get(id(unit))
             res = detect(job)
-            mine: Future = Future()
             mine.set_result(res)
             if timing is not None:
                 timing.mark_done()

@@ -71,7 +71,10 @@ class _Slot:
             raise
 
     def close(self) -> None:
-        self.mm.close()
+        try:
+            self.mm.close()
+        except BufferError:  # an array still views it: unmapped when the last one goes
+            pass
         os.close(self.fd)
 
 
@@ -83,10 +86,10 @@ class PixelSlots:
             raise OSError("no anonymous shared memory (memfd_create) on this system")
         self._free: list[_Slot] = []
         self._busy: dict[int, _Slot] = {}
+        self._staged: dict[int, tuple[np.ndarray, _Slot]] = {}
+        """id(array) -> (array, slot): arrays handed out by :meth:`alloc`, not yet :meth:`put`."""
 
-    def put(self, pixels: np.ndarray) -> SlotRef:
-        """Copy ``pixels`` into a free slot (a new one if none is large enough)."""
-        nbytes = int(pixels.nbytes)
+    def _take(self, nbytes: int) -> _Slot:
         fits = [s for s in self._free if s.capacity >= nbytes]
         if fits:
             slot = min(fits, key=lambda s: s.capacity)
@@ -95,8 +98,35 @@ class PixelSlots:
             if self._free:  # a free slot too small for today's units: replace it
                 self._free.pop(0).close()
             slot = _Slot(max(MIN_SLOT_BYTES, nbytes + nbytes // 8))
-        np.ndarray(pixels.shape, pixels.dtype, buffer=slot.mm)[...] = pixels
         self._busy[slot.serial] = slot
+        return slot
+
+    def alloc(self, shape: tuple[int, ...], dtype: np.dtype | str) -> np.ndarray:
+        """An array in a free slot, for the caller to fill and then :meth:`put` (no copy
+        then), or :meth:`discard`. The slot stays taken until the ref ``put`` returns is
+        released."""
+        dtype = np.dtype(dtype)
+        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        slot = self._take(nbytes)
+        arr = np.ndarray(shape, dtype, buffer=slot.mm)
+        self._staged[id(arr)] = (arr, slot)
+        return arr
+
+    def discard(self, pixels: np.ndarray) -> None:
+        """An array from :meth:`alloc` that will not be sent: its slot is free again."""
+        staged = self._staged.pop(id(pixels), None)
+        if staged is not None and staged[0] is pixels:
+            self._free.append(self._busy.pop(staged[1].serial))
+
+    def put(self, pixels: np.ndarray) -> SlotRef:
+        """``pixels`` in a slot: in place if :meth:`alloc` gave them, else copied into a free
+        slot (a new one if none is large enough)."""
+        staged = self._staged.pop(id(pixels), None)
+        if staged is not None and staged[0] is pixels:
+            slot = staged[1]
+        else:
+            slot = self._take(int(pixels.nbytes))
+            np.ndarray(pixels.shape, pixels.dtype, buffer=slot.mm)[...] = pixels
         return SlotRef(os.getpid(), slot.fd, slot.serial, slot.capacity, tuple(pixels.shape), pixels.dtype.str)
 
     def release(self, ref: SlotRef) -> None:
@@ -113,7 +143,7 @@ class PixelSlots:
         """Unmap and close every slot (the memory goes when the worker's mappings do)."""
         for slot in [*self._free, *self._busy.values()]:
             slot.close()
-        self._free, self._busy = [], {}
+        self._free, self._busy, self._staged = [], {}, {}
 
 
 _MAPS: OrderedDict[tuple[int, int], mmap.mmap] = OrderedDict()
@@ -208,8 +238,29 @@ class SlotChannel:
         self._refs[id(fut)] = ref
         return fut
 
+    def alloc(self, shape: tuple[int, ...], dtype: np.dtype | str = np.float32) -> np.ndarray:
+        """An array for a unit's pixels: in a slot when jobs travel in slots (:meth:`submit`
+        then sends it without a copy), else ordinary memory. An array that will not be
+        submitted goes back with :meth:`discard`."""
+        if self.ready:
+            try:
+                return self.slots.alloc(shape, dtype)
+            except OSError as exc:  # shared memory exhausted: ordinary memory, the pipe
+                log.warning("unit pixels through the pipe: %s", exc)
+        return np.empty(shape, dtype)
+
+    def discard(self, pixels: np.ndarray) -> None:
+        if self.slots is not None:
+            self.slots.discard(pixels)
+
+    def rekey(self, old: Future, new: Future) -> None:
+        """The slot of ``old``'s job now belongs to ``new`` (a unit taken back from the worker)."""
+        ref = self._refs.pop(id(old), None)
+        if ref is not None:
+            self._refs[id(new)] = ref
+
     def done(self, fut: Future) -> None:
-        """The result of ``fut`` was taken: its slot (if any) can take another unit."""
+        """The unit of ``fut`` is finished with: its slot (if any) can take another unit."""
         ref = self._refs.pop(id(fut), None)
         if ref is not None and self.slots is not None:
             self.slots.release(ref)

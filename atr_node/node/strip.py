@@ -18,6 +18,7 @@ columns).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,35 +60,72 @@ class StripUnit:
 
 
 class _Rows:
-    """Rows of one leg and side kept between tiles: pixels, times, nav, origin tile seq."""
+    """Rows of one leg and side kept between tiles: pixels, times, nav, origin tile seq.
+
+    Appended blocks are kept as they come and joined once, when a unit is cut (:meth:`cat`):
+    a tile's pixels are copied once on their way into a unit, not once more into the pending
+    rows (8 MB per 2-Mpx tile)."""
 
     def __init__(self, cols: int) -> None:
-        self.px = np.empty((0, cols), np.float32)
-        self.t = np.empty(0)
-        self.nav = np.empty((0, 4))
-        self.src = np.empty(0, dtype=np.int64)
+        self.cols = cols
+        self._blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._n = 0
+
+    @classmethod
+    def of(cls, px: np.ndarray, t: np.ndarray, nav: np.ndarray, src: np.ndarray) -> "_Rows":
+        out = cls(px.shape[1])
+        out._blocks = [(px, t, nav, src)] if len(t) else []
+        out._n = int(len(t))
+        return out
 
     def append(self, px, t, nav, seq) -> None:
-        self.px = np.concatenate([self.px, px])
-        self.t = np.concatenate([self.t, t])
-        self.nav = np.concatenate([self.nav, nav])
-        self.src = np.concatenate([self.src, np.full(len(t), seq, dtype=np.int64)])
+        if len(t):
+            self._blocks.append((px, np.asarray(t), np.asarray(nav), np.full(len(t), seq, dtype=np.int64)))
+            self._n += len(t)
 
-    def cat(self, other: "_Rows") -> "_Rows":
-        out = _Rows(self.px.shape[1])
-        out.px = np.concatenate([self.px, other.px])
-        out.t = np.concatenate([self.t, other.t])
-        out.nav = np.concatenate([self.nav, other.nav])
-        out.src = np.concatenate([self.src, other.src])
-        return out
+    def _joined(self, i: int, dtype, width: int) -> np.ndarray:
+        parts = [b[i] for b in self._blocks]
+        if not parts:
+            return np.empty((0, width) if width else (0,), dtype)
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
-    def take(self, rows: slice) -> "_Rows":
-        out = _Rows(self.px.shape[1])
-        out.px, out.t, out.nav, out.src = self.px[rows], self.t[rows], self.nav[rows], self.src[rows]
-        return out
+    @property
+    def px(self) -> np.ndarray:
+        return self._joined(0, np.float32, self.cols)
+
+    @property
+    def t(self) -> np.ndarray:
+        return self._joined(1, np.float64, 0)
+
+    @property
+    def nav(self) -> np.ndarray:
+        return self._joined(2, np.float64, 4)
+
+    @property
+    def src(self) -> np.ndarray:
+        return self._joined(3, np.int64, 0)
+
+    def cat(self, other: "_Rows", alloc: Callable[[tuple[int, int]], np.ndarray] | None = None) -> "_Rows":
+        """These rows then ``other``'s, each array joined into one block (one copy; the
+        pixels into ``alloc((rows, cols))`` if given)."""
+        both = _Rows(self.cols)
+        both._blocks = self._blocks + other._blocks
+        both._n = self._n + other._n
+        parts = [b[0] for b in both._blocks]
+        if alloc is None:
+            px = both.px
+        else:
+            px = alloc((both._n, self.cols))
+            if parts:
+                np.concatenate(parts, out=px)
+        return _Rows.of(px, both.t, both.nav, both.src)
+
+    def take(self, rows: slice, *, copy: bool = False) -> "_Rows":
+        px = self.px[rows]
+        return _Rows.of(px.copy() if copy else px, self.t[rows], self.nav[rows], self.src[rows])
 
     def __len__(self) -> int:
-        return int(self.t.size)
+        return self._n
 
 
 @dataclass
@@ -122,10 +160,15 @@ class StripAssembler:
         A gap in ping time larger than this starts a new strip (no context across it).
     """
 
-    def __init__(self, margin_rows: int, *, max_gap_s: float = 5.0) -> None:
+    def __init__(self, margin_rows: int, *, max_gap_s: float = 5.0,
+                 alloc: Callable[[tuple[int, int]], np.ndarray] | None = None) -> None:
         self.m = int(margin_rows)
         self.max_gap_s = float(max_gap_s)
         self._legs: dict[str, _LegState] = {}
+        self.alloc = alloc
+        """Memory for each unit's pixels, (rows, cols) float32 (None: a new array): the node
+        gives shared memory its worker reads in place (``atr_node.node.pixelshm``). The
+        assembler keeps no view of it once the unit is out."""
 
     def push(self, tile: Tile) -> list[StripUnit]:
         """Take a ground-range tile with nav; return the units it completes (0, 1 or 2)."""
@@ -175,7 +218,7 @@ class StripAssembler:
 
     def _emit(self, st: _LegState, n_core: int, future: int) -> StripUnit:
         ctx, pend = st.context, st.pending
-        rows = ctx.cat(pend)
+        rows = ctx.cat(pend, self.alloc)
         core = slice(len(ctx), len(ctx) + n_core)
         nav = rows.nav
         core_end = core.stop
@@ -186,8 +229,9 @@ class StripAssembler:
                          st.range0_m, st.dr_m, st.dx_m, st.kind, tuple(int(s) for s in in_core),
                          tuple(int(s) for s in in_core if int(s) not in later))
         # the new context: the last m core rows; the new pending: the rows after the core
-        st.context = rows.take(slice(max(core_end - self.m, 0), core_end))
-        st.pending = rows.take(slice(core_end, None))
+        # (copies, a margin's rows each: the unit's memory may be reused once it is fused)
+        st.context = rows.take(slice(max(core_end - self.m, 0), core_end), copy=True)
+        st.pending = rows.take(slice(core_end, None), copy=True)
         assert len(st.pending) == (len(pend) - n_core)
         return unit
 
@@ -208,9 +252,8 @@ class StripAssembler:
         for side, d in state.items():
             rows = {}
             for name in ("context", "pending"):
-                r = _Rows(int(d["cols"]))
-                r.px, r.t, r.nav, r.src = (np.asarray(d[name][k]) for k in ("px", "t", "nav", "src"))
-                rows[name] = r
+                px, t, nav, src = (np.asarray(d[name][k]) for k in ("px", "t", "nav", "src"))
+                rows[name] = _Rows.of(px.reshape(-1, int(d["cols"])), t, nav.reshape(-1, 4), src)
             self._legs[side] = _LegState(d["mission"], int(d["leg"]), d["side"], float(d["range0_m"]),
                                          float(d["dr_m"]), float(d["dx_m"]), d["kind"], int(d["cols"]),
                                          int(d["last_seq"]), float(d["last_time"]), rows["context"], rows["pending"])

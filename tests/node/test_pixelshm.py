@@ -48,6 +48,69 @@ def test_slots_round_trip_bit_for_bit_and_are_reused():
             os.fstat(fd)
 
 
+def test_an_allocated_slot_is_sent_without_a_copy_or_given_back():
+    slots = PixelSlots()
+    a = slots.alloc((300, 201), np.float32)
+    a[...] = np.arange(300 * 201, dtype=np.float32).reshape(300, 201)
+    assert slots.slots == 1 and len(slots._busy) == 1
+    ra = slots.put(a)  # the array is already in its slot: no new slot, the reader sees it
+    assert slots.slots == 1 and ra.shape == (300, 201)
+    assert slot_pixels(ra).tobytes() == a.tobytes()
+    a[0, 0] = -1.0  # the same memory, not a copy
+    assert slot_pixels(ra)[0, 0] == -1.0
+    copy = a.copy()
+    rc = slots.put(copy)  # not from alloc: copied into another slot
+    assert rc.serial != ra.serial and slot_pixels(rc).tobytes() == copy.tobytes()
+    slots.release(ra)
+    slots.release(rc)
+    b = slots.alloc((100, 201), np.float32)  # takes a free slot
+    assert slots.slots == 2 and len(slots._busy) == 1
+    slots.discard(b)  # never sent: free again
+    assert not slots._busy and not slots._staged and slots.slots == 2
+    slots.discard(np.zeros(3))  # not one of its arrays: nothing happens
+    slots.close()
+
+
+def test_units_are_written_into_slots_and_every_slot_comes_back(small_mission):
+    """With slots, the strip writes each unit's pixels straight into a slot; the slot stays
+    the unit's until its fusion (a unit the main process takes back from the worker
+    included), and the strip keeps no view of it (its margin rows are copies)."""
+    import time
+    settings, _cfg, files = small_mission
+    pipe = Pipeline(settings, model=PerformanceModel.shipped(), workers=1, mode="replay")
+    ref = Pipeline(settings, model=PerformanceModel.shipped(), workers=0, mode="replay")
+    try:
+        pipe.channel._probe[0].result(timeout=120)
+        seen = []
+        real_submit = pipe.channel.submit
+
+        def submit(job):
+            seen.append(any(job.pixels is arr for arr, _ in pipe.channel.slots._staged.values()))
+            return real_submit(job)
+
+        pipe.channel.submit = submit
+        pipe._pool.submit(time.sleep, 2.0)  # a busy worker: the main process steals units
+        recs = list(read_atrlog(files.atrlog))
+        for rec in recs[:len(recs) * 2 // 3]:
+            pipe.feed(rec)
+        assert pipe.strips._legs
+        for st in pipe.strips._legs.values():  # the rows kept for the next unit own their memory
+            for rows in (st.context, st.pending):
+                assert rows.px.base is None
+        for rec in recs[len(recs) * 2 // 3:]:
+            pipe.feed(rec)
+        pipe.finish()
+        got = pipe.contacts
+        assert seen and all(seen)
+        assert pipe.stats.units_main >= 1
+        slots = pipe.channel.slots
+        assert not slots._busy and not slots._staged and pipe.channel.in_use == 0
+        assert got == ref.replay(read_atrlog(files.atrlog)).contacts and len(got) > 0
+    finally:
+        ref.close()
+        pipe.close()
+
+
 def test_two_slot_pools_in_one_process_do_not_share_memory():
     a, b = PixelSlots(), PixelSlots()
     try:
@@ -90,6 +153,7 @@ def test_replay_through_slots_equals_in_process_and_releases_them(small_mission)
         got = pipe.replay(read_atrlog(files.atrlog)).contacts
         slots = pipe.channel.slots
         assert slots is not None and slots.slots >= 1 and not slots._busy and pipe.channel.in_use == 0
+        assert not slots._staged  # every unit written into a slot was sent
         assert got == want and len(got) > 0
     finally:
         ref.close()
