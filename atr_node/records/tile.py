@@ -359,7 +359,9 @@ def parse_tile(m: Any) -> Tile:
 
     raw = np.frombuffer(data, dtype=dt).reshape(rows, cols)
     if dt.kind == "f":
-        pixels = raw.astype(np.float32)  # a copy: the tile owns its pixels
+        # float32 on the wire: the tile's pixels are the record's bytes, read-only (records are
+        # never modified after they are made; the strip copies them into units), not a copy
+        pixels = raw if raw.dtype == np.float32 else raw.astype(np.float32)
         lo = np.fmin.reduce(pixels, axis=None)
         hi = np.fmax.reduce(pixels, axis=None)
         if np.isinf(lo) or np.isinf(hi):

@@ -42,6 +42,19 @@ def test_round_trip_exact(dtype, with_nav):
     assert back.to_map()["data"] == tile.to_map()["data"]
 
 
+def test_float32_pixels_are_the_records_bytes_read_only():
+    """A float32 tile is not copied out of its record: its pixels view the map's bytes,
+    read-only (records are never modified after they are made)."""
+    m = make_tile(rows=40, cols=30).to_map()
+    back = Tile.from_map(m)
+    assert np.shares_memory(back.pixels, np.frombuffer(m["data"], np.uint8))
+    with pytest.raises(ValueError):
+        back.pixels[0, 0] = 1.0
+    assert back.pixels.dtype == np.float32 and back.equals(make_tile(rows=40, cols=30))
+    ints = Tile.from_map(make_tile(dtype="uint16").to_map())  # converted: its own, writable array
+    assert ints.pixels.flags.writeable and ints.pixels.dtype == np.float32
+
+
 def test_integer_zero_is_nodata_and_written_back_as_zero():
     m = make_tile(dtype="uint16").to_map()
     raw = np.frombuffer(m["data"], dtype="<u2").reshape(m["shape"])
