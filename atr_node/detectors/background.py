@@ -81,9 +81,18 @@ def column_median(pixels: np.ndarray, *, valid_counts: np.ndarray | None = None)
     rows, cols = a.shape
     if rows == 0 or cols == 0:
         return np.full(cols, np.nan)
-    n = cv2.reduce(np.isfinite(a).view(np.uint8), 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).reshape(-1) \
+    finite = np.isfinite(a)
+    n = cv2.reduce(finite.view(np.uint8), 0, cv2.REDUCE_SUM, dtype=cv2.CV_32S).reshape(-1) \
         if valid_counts is None else np.asarray(valid_counts)
     n = n.astype(np.int64)
+    # Rows without any valid pixel (dropped pings) hold no value of any column: leaving them
+    # out changes no median, and spares every column the missing-pixel path below (a few
+    # dropped pings would otherwise make every column "partly valid").
+    keep = None
+    per_row = finite.any(axis=1)
+    if not per_row.all() and per_row.any():
+        keep = np.flatnonzero(per_row)
+        rows = keep.size
     k = rows - n
     mid = (rows - 1) // 2
     lo = k // 2 + (n - 1) // 2
@@ -91,10 +100,12 @@ def column_median(pixels: np.ndarray, *, valid_counts: np.ndarray | None = None)
     centre, below, above = np.empty(cols), np.full(cols, np.nan), np.full(cols, np.nan)
     # Columns a block at a time: the block's transposed copy stays in cache and reuses memory
     # (a whole transposed copy of a large tile costs more in page faults than the partition).
-    step = max(1, _MEDIAN_BLOCK_BYTES // (4 * rows))
+    step = max(1, _MEDIAN_BLOCK_BYTES // (4 * a.shape[0]))
     for c0 in range(0, cols, step):
         c1 = min(cols, c0 + step)
-        at = cv2.transpose(a[:, c0:c1])  # (block cols, rows), each column contiguous
+        # (block cols, rows), each column contiguous; the valid rows only (a gather of whole
+        # row pieces, then the transpose)
+        at = cv2.transpose(a[:, c0:c1] if keep is None else a[keep, c0:c1])
         if at.ndim == 1:  # OpenCV gives a 1-D array for a single column
             at = at.reshape(1, rows)
         kb = k[c0:c1]

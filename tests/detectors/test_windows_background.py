@@ -77,6 +77,31 @@ def test_column_median_large_tile_with_infinities(rng):
     np.testing.assert_array_equal(column_median(x), np.nanmedian(ref_in, axis=0))
 
 
+@pytest.mark.parametrize("scattered", [0.0, 0.05])
+def test_column_median_with_dropped_pings_equals_nanmedian(rng, monkeypatch, scattered):
+    """Rows without any valid pixel (dropped pings) are left out before the partition: the
+    same medians, even and odd counts, with empty columns and scattered no-data pixels, in
+    blocks of one and of several columns."""
+    from atr_node.detectors import background
+
+    x = rng.integers(0, 6, size=(97, 40)).astype(np.float32)  # ties on purpose
+    x[rng.random(x.shape) < scattered] = np.nan
+    x[[0, 3, 4, 50, 96]] = np.nan  # dropped pings, the first and the last included
+    x[:, 7] = np.nan  # a column without data
+    x[:60, 11] = np.inf  # non-finite is no data
+    ref = x.astype(np.float64)
+    ref[~np.isfinite(ref)] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ref_even = np.nanmedian(ref[:-1], axis=0)
+        ref = np.nanmedian(ref, axis=0)
+    np.testing.assert_array_equal(column_median(x), ref)
+    np.testing.assert_array_equal(column_median(x[:-1]), ref_even)
+    monkeypatch.setattr(background, "_MEDIAN_BLOCK_BYTES", 4 * 97 * 3)
+    np.testing.assert_array_equal(column_median(x), ref)
+    assert np.isnan(column_median(np.full((5, 3), np.nan, np.float32))).all()
+
+
 def test_column_median_by_blocks_of_columns_equals_nanmedian(rng, monkeypatch):
     """Blocks of 1 and of 7 columns (the last one short), partly and wholly empty columns."""
     from atr_node.detectors import background
