@@ -55,7 +55,7 @@ from .navmerge import NavMerger
 from .strip import StripAssembler, StripUnit
 from .pixelshm import SlotChannel
 from .timing import UnitTiming
-from .warmup import fusion_reserve_chunks, keep_freed_memory, keep_small_pages, node_worker_init, warm_up_worker
+from .warmup import fusion_reserve_chunks, keep_small_pages, node_worker_init, warm_up_worker
 
 log = logging.getLogger(__name__)
 
@@ -173,7 +173,6 @@ class Pipeline:
         # the node allocates tens of MB per tile: huge-page advice makes each fresh page fault
         # compact memory first, which doubled the node's time on the target VM (warmup.py)
         keep_small_pages()
-        keep_freed_memory()
         self._pool: ProcessPoolExecutor | None = None
         self._steals = False
         """Replay: this process scores units the worker has not started rather than wait (``_steal``)."""

@@ -17,18 +17,6 @@ the first tile, so the worker scores a synthetic unit of ``node.warm_up_mpx`` me
 it starts: the buffers are then mapped, and the first real tiles up to that size cost what
 every later tile costs. The synthetic unit is built in the worker (nothing crosses the
 process boundary) on the sonar's nominal range axis; its result is discarded.
-
-Freed memory kept. glibc's malloc serves a large block from a fresh ``mmap`` and, once its
-dynamic threshold has risen past it, from the heap, which it trims back to the kernel as
-soon as more than twice that threshold is free at its top. The node frees and allocates
-blocks of a tile's size all the time (each tile's bytes from the recording or the link, the
-strip units, the coverage masks), so in both cases the next block is fresh memory, a page
-fault per 4 kB: reading the 128-Mpx benchmark recording took 0.70 s of CPU and 122,000 faults
-in a fresh process, 0.21 s and 9,000 faults with the heap kept (``/tmp`` measurement,
-2026-11-23). :func:`keep_freed_memory` makes both node processes serve blocks up to
-``MALLOC_KEEP_BLOCK`` from the heap and keep up to ``MALLOC_KEEP_TOP`` of it free; the
-memory a node holds is then its peak working set. Nothing observable changes; glibc's own
-settings (``GLIBC_TUNABLES``, ``MALLOC_*_``) win when set.
 """
 
 from __future__ import annotations
@@ -58,36 +46,10 @@ def keep_small_pages() -> bool:
     return True
 
 
-MALLOC_KEEP_BLOCK = 32 << 20
-"""Blocks up to this size come from the heap (glibc's ceiling for ``M_MMAP_THRESHOLD``)."""
-MALLOC_KEEP_TOP = 512 << 20
-"""Free memory at the heap's top kept rather than returned (``M_TRIM_THRESHOLD``)."""
-_GLIBC_MALLOC_ENV = ("GLIBC_TUNABLES", "MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TOP_PAD_",
-                     "MALLOC_MMAP_MAX_")
-
-
-def keep_freed_memory() -> bool:
-    """Keep freed memory in this process's heap for reuse (glibc, see the module docstring),
-    unless glibc's malloc is configured from the environment. Returns whether it was set."""
-    if any(os.environ.get(k) is not None for k in _GLIBC_MALLOC_ENV):
-        return False
-    try:
-        import ctypes
-        import ctypes.util
-
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # not glibc
-        return False
-    m_trim_threshold, m_mmap_threshold = -1, -3  # malloc.h
-    return bool(mallopt(m_mmap_threshold, MALLOC_KEEP_BLOCK)) and bool(mallopt(m_trim_threshold, MALLOC_KEEP_TOP))
-
-
 def node_worker_init() -> None:
     """The detection worker's initializer: :func:`~atr_node.node.detect.worker_init` plus
-    small pages and freed memory kept."""
+    small pages."""
     keep_small_pages()
-    keep_freed_memory()
     worker_init()
 
 
