@@ -327,15 +327,17 @@ class NodeSettings:
     """Live mode: the detection worker scores a synthetic unit of this many megapixels when it
     starts, so the first tiles up to that size find its buffers mapped (first touch of that
     memory cost 0.3-1.6 s on the target VM). The worker then holds those buffers (about
-    70 B per pixel: ~0.65 GB at 8 Mpx), as it would after its first tile of that size. The
-    main process maps the evidence grid's memory for an open leg of such units
-    (``node/warmup.py: fusion_reserve_chunks``: ~225 MB at 8 Mpx). Set it to the sonar's unit
-    size; 0 = a tiny warm-up only, nothing reserved."""
+    70 B per pixel: ~0.65 GB at 8 Mpx), as it would after its first tile of that size. In
+    both modes the main process maps the evidence grid's memory for an open leg of such units
+    while the worker starts (``node/warmup.py: fusion_reserve_chunks``: ~225 MB at 8 Mpx).
+    Set it to the sonar's unit size; 0 = a tiny warm-up only, nothing reserved."""
     replay_main_scores: bool = True
-    """Replay mode (``--speed max``): when three units wait for the worker, the main process
-    scores the next one itself (the same pure function: the same results), so neither core
-    idles; off = the main process only waits for the worker. Not used live (it made the worst
-    tile latency longer: see ``atr_node.node.pipeline.MAIN_SCORES_AT``)."""
+    """Replay mode (``--speed max``): rather than wait for the worker (back-pressure, or the
+    end of the input), the main process takes back the newest units the worker has not
+    started and scores them itself (the same pure function: the same results), so neither
+    core idles; off = the main process only waits. Not used live (scoring in the main process
+    there made the worst tile latency longer: both sides of a ping then score and fuse in
+    series)."""
 
     def __post_init__(self) -> None:
         _check(self.queue_tiles >= 1, "node.queue_tiles", "must be >= 1")

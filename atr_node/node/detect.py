@@ -81,7 +81,8 @@ def detect(job: DetectJob) -> DetectResult:
 
     for d in job.enabled:
         s = scores[d]
-        bits = np.packbits(~np.isnan(s))
+        bits = np.packbits(np.isnan(s))
+        np.invert(bits, out=bits)  # covered = not NaN, inverted packed (the padding bits are never read)
         covered[d] = next((b for b in covered.values() if np.array_equal(b, bits)), bits)
         dets[d] = extract(s, d, job.taus[d])
         if sweep is not None:

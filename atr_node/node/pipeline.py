@@ -9,16 +9,21 @@
          --> fuse (EvidenceGrid: confidence from the model, missed detections from Pd(r))
          --> ContactTracker --> contact messages (new / update / withdrawn)
 
-Unit pixels reach the worker through shared memory (``pixelshm.py``), both processes run with
-small pages and a live node's worker warms up at full tile size (``warmup.py``); each unit's
-stage times are kept in ``stats.stages`` (``timing.py``, ``tools/latency_breakdown.py``).
+Unit pixels reach the worker through shared memory (``pixelshm.py``: the strip writes each
+unit straight into its slot), both processes run with small pages, a live node's worker warms
+up at full tile size and the evidence grid's memory is mapped while the worker starts
+(``warmup.py``); each unit's stage times are kept in ``stats.stages`` (``timing.py``,
+``tools/latency_breakdown.py``).
 
 The pipeline is a deterministic function of the record sequence: units are fused in the
 order they were formed, whatever the worker's timing, and the on-line calibration switch
 happens at a tile count. Two modes:
 
-- ``replay``: never degrades. When the worker falls behind, ``feed`` waits for it
-  (back-pressure), so a replay at any speed gives the same contacts.
+- ``replay``: never degrades. When the units in flight hold more than
+  :data:`REPLAY_INFLIGHT_MPX`, ``feed`` fuses the oldest before it goes on (back-pressure),
+  so a replay at any speed gives the same contacts. Rather than wait there, or at the end,
+  the main process takes back the newest units the worker has not started and scores them
+  itself (``node.replay_main_scores``, :meth:`Pipeline._steal`).
 - ``live``: never waits. When ``node.queue_tiles`` units are in flight the node enters the
   *degraded* mode: new units are scored at decimation 2 (four times less work, slightly
   coarser scores); at twice that many, whole units are dropped and counted as
