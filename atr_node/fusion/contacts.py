@@ -130,6 +130,38 @@ class Contact:
 _CONTENT_FIELDS = tuple(f.name for f in dataclasses.fields(Contact) if f.name not in ("state", "t"))
 
 
+def _one_to_one(pairs: list[tuple[float, int, int]]) -> dict[int, int]:
+    """Component -> contact id from (distance, contact id, component) pairs: nearest first,
+    each contact and each component used once."""
+    pairs.sort()
+    comp_id: dict[int, int] = {}
+    used: set[int] = set()
+    for _, cid, j in pairs:
+        if cid not in used and j not in comp_id:
+            comp_id[j] = cid
+            used.add(cid)
+    return comp_id
+
+
+def _component_stats(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, bel: np.ndarray, lab: np.ndarray,
+                     n_comp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per component label: belief-weighted centroid (east, north), spread ``sigma_m`` and
+    peak cell (index of its highest Bel(T), the last such cell on a tie)."""
+    e, nn_ = grid.cell_centre(iy, ix)
+    w = np.bincount(lab, weights=bel, minlength=n_comp)
+    ce = np.bincount(lab, weights=bel * e, minlength=n_comp) / np.maximum(w, 1e-300)
+    cn = np.bincount(lab, weights=bel * nn_, minlength=n_comp) / np.maximum(w, 1e-300)
+    var = np.bincount(lab, weights=bel * ((e - ce[lab]) ** 2 + (nn_ - cn[lab]) ** 2), minlength=n_comp)
+    sigma = np.sqrt(0.5 * var / np.maximum(w, 1e-300) + grid.cell_m ** 2 / 12.0)
+    # the peak: the last of a stable sort by (label, bel)
+    top = np.full(n_comp, -np.inf)
+    np.maximum.at(top, lab, bel)
+    at_top = np.flatnonzero(bel == top[lab])
+    peak = np.zeros(n_comp, dtype=np.int64)
+    np.maximum.at(peak, lab[at_top], at_top)
+    return ce, cn, sigma, peak
+
+
 def label_cells(iy: np.ndarray, ix: np.ndarray) -> tuple[int, np.ndarray]:
     """8-connected components of a sparse set of distinct cells; (n, labels (K,)), labels
     numbered in order of each component's first cell in the given order."""
@@ -279,19 +311,7 @@ class ContactTracker:
         n_reg, reg = label_cells(iy, ix)
         det_reg = self._detection_labels(grid, iy, ix, reg)
         lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg)
-        e, nn_ = grid.cell_centre(iy, ix)
-        w = np.bincount(lab, weights=bel, minlength=n_comp)
-        ce = np.bincount(lab, weights=bel * e, minlength=n_comp) / np.maximum(w, 1e-300)
-        cn = np.bincount(lab, weights=bel * nn_, minlength=n_comp) / np.maximum(w, 1e-300)
-        var = np.bincount(lab, weights=bel * ((e - ce[lab]) ** 2 + (nn_ - cn[lab]) ** 2), minlength=n_comp)
-        sigma = np.sqrt(0.5 * var / np.maximum(w, 1e-300) + grid.cell_m ** 2 / 12.0)
-        # peak cell of each label: its highest Bel(T), the last such cell on a tie (as the last
-        # of a stable sort by (label, bel))
-        top = np.full(n_comp, -np.inf)
-        np.maximum.at(top, lab, bel)
-        at_top = np.flatnonzero(bel == top[lab])
-        peak = np.zeros(n_comp, dtype=np.int64)
-        np.maximum.at(peak, lab[at_top], at_top)
+        ce, cn, sigma, peak = _component_stats(grid, iy, ix, bel, lab, n_comp)
         # one-to-one matching, nearest first, within the gate (one distance matrix, live
         # contacts x components; the same element-wise hypot as one row at a time)
         pairs = []
@@ -302,13 +322,7 @@ class ContactTracker:
             d = np.hypot(ce[None, :] - le[:, None], cn[None, :] - ln[:, None])
             ii, jj = np.nonzero(d <= self.gate_m)
             pairs = list(zip(d[ii, jj].tolist(), [cids[i] for i in ii.tolist()], jj.tolist()))
-        pairs.sort()
-        comp_id: dict[int, int] = {}
-        used: set[int] = set()
-        for _, cid, j in pairs:
-            if cid not in used and j not in comp_id:
-                comp_id[j] = cid
-                used.add(cid)
+        comp_id = _one_to_one(pairs)
         out: list[Contact] = []
         # detections of each component: one stable sort, not a scan of all detections per
         # component (same members, same order)
@@ -338,6 +352,12 @@ class ContactTracker:
             c = Contact(id=cid, state=state, t=float(t), lat_deg=float(lat), lon_deg=float(lon), **fields)
             self.live[cid] = c
             out.append(c)
+        return self._withdraw_rest(grid, t, comp_id, out)
+
+    def _withdraw_rest(self, grid: EvidenceGrid, t: float, comp_id: dict[int, int], out: list[Contact]
+                       ) -> list[Contact]:
+        """Withdraw the live contacts neither matched nor published in ``out`` (with the belief
+        now at their position), record every message, return them all."""
         for cid in sorted(set(self.live) - set(comp_id.values()) - {c.id for c in out}):
             old = self.live.pop(cid)
             m = grid.masses_at(old.east_m, old.north_m)
@@ -431,19 +451,9 @@ class ContactTracker:
             det_idx, det_reg = det_idx[hit], det_reg[hit]
         extras: list[tuple[int, int]] = []
         lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, det_idx, extras)
-        # per-component statistics: the full extraction's expressions on a subset of its cells
-        # (each component's cells in the same order: the same sums, bit for bit)
-        e, nn_ = grid.cell_centre(iy, ix)
-        w = np.bincount(lab, weights=bel, minlength=n_comp)
-        ce = np.bincount(lab, weights=bel * e, minlength=n_comp) / np.maximum(w, 1e-300)
-        cn = np.bincount(lab, weights=bel * nn_, minlength=n_comp) / np.maximum(w, 1e-300)
-        var = np.bincount(lab, weights=bel * ((e - ce[lab]) ** 2 + (nn_ - cn[lab]) ** 2), minlength=n_comp)
-        sigma = np.sqrt(0.5 * var / np.maximum(w, 1e-300) + grid.cell_m ** 2 / 12.0)
-        top = np.full(n_comp, -np.inf)
-        np.maximum.at(top, lab, bel)
-        at_top = np.flatnonzero(bel == top[lab])
-        peak = np.zeros(n_comp, dtype=np.int64)
-        np.maximum.at(peak, lab[at_top], at_top)
+        # the full extraction's statistics on a subset of its cells (each component's cells in
+        # the same order: the same sums, bit for bit)
+        ce, cn, sigma, peak = _component_stats(grid, iy, ix, bel, lab, n_comp)
         d_order = np.argsort(det_lab, kind="stable")
         d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1)).tolist()
         r_order = np.argsort(reg, kind="stable")
@@ -502,13 +512,7 @@ class ContactTracker:
             d = np.hypot(ce[jj] - le[ii], cn[jj] - ln[ii])
             ok = d <= self.gate_m
             pairs = list(zip(d[ok].tolist(), [cids[i] for i in ii[ok].tolist()], jj[ok].tolist()))
-        pairs.sort()
-        comp_id: dict[int, int] = {}
-        used: set[int] = set()
-        for _, cid, j in pairs:
-            if cid not in used and j not in comp_id:
-                comp_id[j] = cid
-                used.add(cid)
+        comp_id = _one_to_one(pairs)
         out: list[Contact] = []
         for j, comp in enumerate(comps):
             cid = comp_id.get(j)
@@ -539,14 +543,7 @@ class ContactTracker:
             self.live[cid] = c
             comp.seen = c
             out.append(c)
-        for cid in sorted(set(self.live) - set(comp_id.values()) - {c.id for c in out}):
-            old = self.live.pop(cid)
-            m = grid.masses_at(old.east_m, old.north_m)
-            out.append(dataclasses.replace(old, state="withdrawn", t=float(t), bel=float(m.m_t),
-                                           pl=float(1.0 - m.m_n), m_theta=float(m.m_theta)))
-        for c in out:
-            self.history[c.id] = c
-        return out
+        return self._withdraw_rest(grid, t, comp_id, out)
 
     def _split(self, grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, reg: np.ndarray, n_reg: int,
                det_reg: np.ndarray, det_idx: np.ndarray | None = None,
