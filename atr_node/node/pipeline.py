@@ -72,8 +72,9 @@ sit idle there: it *steals* the newest unit the worker has not started and score
 (:meth:`Pipeline._steal`), and does the same while draining at the end, so each core scores
 only what the other would have left it waiting for. A deep queue lets the main process run
 ahead on ingest and fusion while the worker scores (at a limit of 4 units instead, the main
-process stole a median of 6 of the 32-Mpx mission's 24 units, and of 3 at 16); 24 Mpx bound
-the memory it holds: the pixels in shared memory and in the units, about 200 MB."""
+process stole a median of 6 of the 32-Mpx mission's 24 units, and of 3 at 16; at 12 and 6 Mpx
+the median rate was lower, 19.5 and 18.8 against 21.1 Mpx/s over 8 runs each); 24 Mpx bound
+the shared memory the units in flight hold to about 110 MB."""
 
 REPLAY_INFLIGHT_MIN = 3
 """Units in flight kept at least (the worker holds two it cannot give back: the one it scores
