@@ -111,11 +111,11 @@ def main(argv: list[str] | None = None) -> int:
         speed = tile_period / args.interval_s
         svc = NodeService(s2, model=PerformanceModel.shipped(), mode="live", workers=1)
         try:
-            # Aboard, the node starts minutes before the survey's first tile: its worker's
-            # warm-up (an 8-Mpx unit scored cold, 1-3 s on this VM) is over by then.
+            # Aboard, the node starts minutes before the survey's first tile: its warm-up (an
+            # 8-Mpx unit scored cold in the worker and in the main process, 1-3 s on this VM) is
+            # over by then.
             time.sleep(1.0)
-            if svc.pipeline.warming is not None:
-                svc.pipeline.warming.result(timeout=300)
+            svc.pipeline.wait_ready(timeout=300)
             svc.run_live(Paced(IterLink(iter(recs)), speed), finish_at_end=True)
             st = svc.pipeline.stats
             p50, p99 = st.latency_ms()

@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         time.sleep(args.warm_up_s)  # the worker starts and warms up before the first tile, as aboard
         warm = svc.pipeline.warming
         warm_s = "done" if warm.done() else f"done after more than {args.warm_up_s:g} s"
-        warm.result(timeout=300)  # as tools/bench_node.py: a node starts before the survey's first tile
+        svc.pipeline.wait_ready(timeout=300)  # as tools/bench_node.py: a node starts before the survey's first tile
         svc.run_live(Paced(IterLink(iter(recs)), speed), finish_at_end=True)
         stages = list(svc.pipeline.stats.stages)
         p50, p99 = svc.pipeline.stats.latency_ms()

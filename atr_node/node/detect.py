@@ -62,15 +62,16 @@ class DetectResult:
         return np.unpackbits(self.covered_bits[detector], count=rows * cols).reshape(rows, cols).view(bool)
 
 
-def detect(job: DetectJob) -> DetectResult:
-    """Score the core of ``job`` with every enabled detector and extract detections (SPEC 2-3)."""
+def detect(job: DetectJob, workspace: Workspace | None = None) -> DetectResult:
+    """Score the core of ``job`` with every enabled detector and extract detections (SPEC 2-3),
+    in ``workspace`` (default: this process's, for one thread at a time)."""
     import time
 
     t0 = time.perf_counter()
     scores = score_strip(job.pixels, core_rows=job.core, range0_m=job.range0_m, dr_m=job.dr_m, dx_m=job.dx_m,
                          altitude_m=job.altitude_m, template=job.template, detectors=job.detectors,
                          enabled=job.enabled, background=job.background, median=job.median,
-                         workspace=_WORKSPACE)
+                         workspace=_WORKSPACE if workspace is None else workspace)
     covered, dets = {}, {}
     shape = (job.core[1] - job.core[0], job.pixels.shape[1])
     sweep: dict[str, dict[float, list[Detection]]] | None = {} if job.sweep else None

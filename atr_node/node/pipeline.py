@@ -24,9 +24,11 @@ happens at a tile count. Two modes:
   so a replay at any speed gives the same contacts. Rather than wait there, or at the end,
   the main process takes back the newest units the worker has not started and scores them
   itself (``node.replay_main_scores``, :meth:`Pipeline._steal`).
-- ``live``: never waits. When ``node.queue_tiles`` units are in flight the node enters the
-  *degraded* mode: new units are scored at decimation 2 (four times less work, slightly
-  coarser scores); at twice that many, whole units are dropped and counted as
+- ``live``: never waits. While the worker scores a unit, the next ones wait in this process,
+  which scores them itself when the links are quiet (``node.live_main_scores``: the second
+  side of a ping need not wait for the first). When ``node.queue_tiles`` units are in flight
+  the node enters the *degraded* mode: new units are scored at decimation 2 (four times less
+  work, slightly coarser scores); at twice that many, whole units are dropped and counted as
   ``tiles_dropped``. It returns to nominal when the queue is below half the limit. The
   mode is in every heartbeat.
 """
@@ -43,11 +45,14 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 import multiprocessing as mp
+import threading
+
 import numpy as np
 
 from ..calibration.model import PerformanceModel
 from ..config import Settings, resolve_relative
 from ..detectors import BackgroundTracker, column_median, required_margin, window_geometry
+from ..detectors.sat import Workspace
 from ..errors import AtrError, TileError
 from ..fusion import ContactTracker, DetectionEvidence, DetectorObservation, EvidenceGrid, Observation
 from ..fusion import association_gate_m
@@ -182,6 +187,11 @@ class Pipeline:
         self._pool: ProcessPoolExecutor | None = None
         self._steals = False
         """Replay: this process scores units the worker has not started rather than wait (``_steal``)."""
+        self._live_steals = False
+        """Live (``node.live_main_scores``): units wait in this process while the worker scores
+        another, and this process scores them itself when it is idle (:meth:`tick`)."""
+        self.main_warming: threading.Event | None = None
+        """Live with ``node.live_main_scores``: set once this process's own warm-up is over."""
         self.warming: Future | None = None
         """The worker's warm-up (done when the worker is ready for full-size tiles)."""
         self.channel: SlotChannel | None = None
@@ -192,7 +202,22 @@ class Pipeline:
                                              initializer=node_worker_init)
             self.channel = SlotChannel(self._pool)
             self._steals = mode == "replay" and settings.node.replay_main_scores
-            if self._steals:
+            self._live_steals = mode == "live" and settings.node.live_main_scores and settings.node.warm_up_mpx > 0
+            if self._live_steals:
+                # this process scores full-size units too: its detector memory is warmed up
+                # like the worker's, in a thread, while the worker warms up (no steal before)
+                self.main_warming = threading.Event()
+                self._workspace = Workspace()  # this pipeline's own: the thread below fills it
+
+                def warm_main() -> None:
+                    try:
+                        warm_up_worker(settings.sensor, settings.template, settings.detectors, self.enabled,
+                                       settings.node.warm_up_mpx, self._workspace)
+                    finally:
+                        self.main_warming.set()
+
+                threading.Thread(target=warm_main, name="atr-main-warm-up", daemon=True).start()
+            if self._steals or self._live_steals:
                 import cv2
 
                 cv2.setNumThreads(1)  # the other core is the worker's
@@ -205,6 +230,15 @@ class Pipeline:
             else:
                 self.warming = self._pool.submit(warm_up)
         self.reserve_fusion()
+
+    def wait_ready(self, timeout: float | None = None) -> None:
+        """Block until the node's warm-up is over: the worker's, and live with
+        ``node.live_main_scores`` this process's own (a node aboard starts minutes before the
+        survey's first tile)."""
+        if self.warming is not None:
+            self.warming.result(timeout=timeout)
+        if self.main_warming is not None:
+            self.main_warming.wait(timeout)
 
     def reserve_fusion(self) -> None:
         """Map the evidence grid's memory for units of ``node.warm_up_mpx`` now, while the worker
@@ -258,6 +292,8 @@ class Pipeline:
         for tile in self.merger.poll(now):
             self._on_tile(tile)
         self._collect(block=False)
+        if self._steal_held():
+            self._collect(block=False)
 
     def finish(self) -> None:
         """End of input: release held tiles, flush strips, drain the worker, commit every leg."""
@@ -401,6 +437,13 @@ class Pipeline:
             timing.mark_done()
             self._fuse(unit, model, res)
             return
+        if self._live_steals:
+            # held here, and handed to the worker, oldest first, when it has nothing to do
+            self._inflight.append((unit, model, None, job))
+            self._inflight_px += job.pixels.size
+            self._pump()
+            self._collect(block=False)
+            return
         fut = self.channel.submit(job)
         timing.queued = time.monotonic()
         fut.add_done_callback(timing.mark_done)
@@ -412,10 +455,47 @@ class Pipeline:
                 self._collect_one()
         self._collect(block=False)
 
+    def _pump(self) -> None:
+        """Live, units held: hand the oldest to the worker once it has nothing to do (so a
+        held unit is still there for this process to take when it is idle)."""
+        if not self._live_steals or any(f is not None and not f.done() for _, _, f, _ in self._inflight):
+            return
+        for i, (unit, model, fut, job) in enumerate(self._inflight):
+            if fut is None:
+                timing = self._timing.get(id(unit))
+                fut = self.channel.submit(job)
+                if timing is not None:
+                    timing.queued = time.monotonic()
+                    fut.add_done_callback(timing.mark_done)
+                self._inflight[i] = (unit, model, fut, job)
+                return
+
+    def _steal_held(self) -> bool:
+        """Live, idle: score the newest held unit in this process (once it is warmed up), so
+        that it does not wait for the worker's unit, usually the other side of the same pings."""
+        if not self._live_steals or not self.main_warming.is_set():
+            return False
+        for i in range(len(self._inflight) - 1, -1, -1):
+            unit, model, fut, job = self._inflight[i]
+            if fut is None:
+                timing = self._timing.get(id(unit))
+                if timing is not None:
+                    timing.queued = time.monotonic()
+                mine: Future = Future()
+                mine.set_result(detect(job, self._workspace))
+                if timing is not None:
+                    timing.mark_done()
+                self._inflight[i] = (unit, model, mine, job)
+                self.stats.units_main += 1
+                return True
+        return False
+
     def _collect_one(self) -> None:
         """Fuse the oldest unit in flight, waiting for its result (replay: stealing meanwhile)."""
         while self._steals and not self._inflight[0][2].done() and self._steal():
             pass
+        if self._inflight[0][2] is None:
+            self._pump()  # the oldest unit was held: the worker is free for it
         unit, model, fut, job = self._inflight.popleft()
         self._inflight_px -= job.pixels.size
         res = fut.result()
@@ -424,6 +504,8 @@ class Pipeline:
         finally:
             if self.channel is not None:
                 self.channel.done(fut)  # the unit's pixels (their slot) are no longer read
+                self.channel.discard(job.pixels)  # a held unit scored here: its slot was never sent
+        self._pump()
 
     def _steal(self) -> bool:
         """Score the newest unit the worker has not started in this process; False if none.
@@ -452,8 +534,9 @@ class Pipeline:
         return False
 
     def _collect(self, *, block: bool) -> None:
-        while self._inflight and (block or self._inflight[0][2].done()):
+        while self._inflight and (block or (self._inflight[0][2] is not None and self._inflight[0][2].done())):
             self._collect_one()
+        self._pump()
 
     def _fuse(self, unit: StripUnit, model: PerformanceModel, res: DetectResult) -> None:
         t0 = time.perf_counter()

@@ -27,6 +27,7 @@ import os
 import numpy as np
 
 from ..config import DetectorSettings, SensorSettings, Settings, TemplateSettings
+from ..detectors.sat import Workspace
 from .detect import DetectJob, detect, warm_up, worker_init
 
 
@@ -63,9 +64,10 @@ def warm_up_shape(sensor: SensorSettings, mpx: float) -> tuple[int, int]:
 
 
 def warm_up_worker(sensor: SensorSettings, template: TemplateSettings, detectors: DetectorSettings,
-                   enabled: tuple[str, ...], mpx: float) -> tuple[int, int]:
+                   enabled: tuple[str, ...], mpx: float, workspace: Workspace | None = None) -> tuple[int, int]:
     """Run in the worker at start: the small warm-up (imports, first calls), then, if
-    ``mpx > 0``, score a synthetic unit of about ``mpx`` megapixels. Returns its shape."""
+    ``mpx > 0``, score a synthetic unit of about ``mpx`` megapixels (in ``workspace``; default:
+    the process's). Returns its shape."""
     warm_up()
     if mpx <= 0:
         return 0, 0
@@ -77,7 +79,7 @@ def warm_up_worker(sensor: SensorSettings, template: TemplateSettings, detectors
                     altitude_m=sensor.altitude_m, background=ones, median=ones,
                     taus={d: getattr(detectors.threshold, d) for d in enabled}, enabled=enabled,
                     template=template, detectors=detectors)
-    detect(job)
+    detect(job, workspace)
     return rows, cols
 
 
