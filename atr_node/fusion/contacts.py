@@ -397,7 +397,7 @@ class ContactTracker:
         """Dissolve the regions near ``changed`` chunks and label their cells again."""
         if not changed:
             return
-        n, nn = grid.n, grid.nn
+        nn = grid.nn
         changed_set = set(changed)
         dissolve: set[int] = set()
         owners = self._chunk_regions

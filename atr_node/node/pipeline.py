@@ -476,19 +476,23 @@ class Pipeline:
         if not self._live_steals or not self.main_warming.is_set():
             return False
         for i in range(len(self._inflight) - 1, -1, -1):
-            unit, model, fut, job = self._inflight[i]
-            if fut is None:
-                timing = self._timing.get(id(unit))
+            if self._inflight[i][2] is None:
+                timing = self._timing.get(id(self._inflight[i][0]))
                 if timing is not None:
                     timing.queued = time.monotonic()
-                mine: Future = Future()
-                mine.set_result(detect(job, self._workspace))
-                if timing is not None:
-                    timing.mark_done()
-                self._inflight[i] = (unit, model, mine, job)
-                self.stats.units_main += 1
+                self._score_here(i, Future(), self._workspace)
                 return True
         return False
+
+    def _score_here(self, i: int, mine: Future, workspace: Workspace | None = None) -> None:
+        """Score in-flight unit ``i`` in this process; its entry then holds ``mine``, done."""
+        unit, model, _fut, job = self._inflight[i]
+        timing = self._timing.get(id(unit))
+        mine.set_result(detect(job, workspace))
+        if timing is not None:
+            timing.mark_done()
+        self._inflight[i] = (unit, model, mine, job)
+        self.stats.units_main += 1
 
     def _collect_one(self) -> None:
         """Fuse the oldest unit in flight, waiting for its result (replay: stealing meanwhile)."""
@@ -523,13 +527,7 @@ class Pipeline:
             mine: Future = Future()
             if self.channel is not None:
                 self.channel.rekey(fut, mine)  # the slot goes with the unit, to its fusion
-            timing = self._timing.get(id(unit))
-            res = detect(job)
-            mine.set_result(res)
-            if timing is not None:
-                timing.mark_done()
-            self._inflight[i] = (unit, model, mine, job)
-            self.stats.units_main += 1
+            self._score_here(i, mine)
             return True
         return False
 

@@ -229,7 +229,7 @@ def test_incremental_update_publishes_what_a_full_extraction_does(frame, scene):
     inc = ContactTracker(fusion, frame, gate_m=3.0)
     full = ContactTracker(fusion, frame, gate_m=3.0, incremental=False)
     assert inc.incremental and not full.incremental
-    a, b = [], []
+    a = []
     for i, o in enumerate(obs):
         grid.add_observation(o)
         ma = [c.to_message() for c in inc.update(grid, o.t)]

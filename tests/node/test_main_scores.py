@@ -52,20 +52,30 @@ def _live(settings, **node):
     return settings.replace(node=dataclasses.replace(settings.node, **node))
 
 
+def _live_reference(small_mission):
+    """Live settings for these tests, the mission's records, and the contacts of an in-process
+    run. No degraded mode (it would change the scores): the queue may grow while the worker
+    sleeps."""
+    settings, _cfg, files = small_mission
+    s = _live(settings, warm_up_mpx=0.05, queue_tiles=1000)
+    recs = list(read_atrlog(files.atrlog))
+    ref = Pipeline(s, model=PerformanceModel.shipped(), workers=0, mode="live")
+    try:
+        for rec in recs:
+            ref.feed(rec)
+        ref.finish()
+        return s, recs, ref.contacts
+    finally:
+        ref.close()
+
+
 def test_live_units_wait_in_the_main_process_which_scores_them_when_idle(small_mission):
     """Live, the worker busy: the next units are held in the main process, which scores the
     newest itself when the links are quiet (``tick``); the contacts are those of an
     in-process run, and every slot comes back."""
-    settings, _cfg, files = small_mission
-    # no degraded mode here (it would change the scores): the queue may grow while the worker sleeps
-    s = _live(settings, warm_up_mpx=0.05, queue_tiles=1000)
-    ref = Pipeline(s, model=PerformanceModel.shipped(), workers=0, mode="live")
+    s, recs, want = _live_reference(small_mission)
     pipe = Pipeline(s, model=PerformanceModel.shipped(), workers=1, mode="live")
     try:
-        recs = list(read_atrlog(files.atrlog))
-        for rec in recs:
-            ref.feed(rec)
-        ref.finish()
         pipe.warming.result(timeout=120)
         assert pipe.main_warming.wait(timeout=120)
         pipe._pool.submit(time.sleep, 2.0)  # the worker is busy for a while
@@ -78,9 +88,8 @@ def test_live_units_wait_in_the_main_process_which_scores_them_when_idle(small_m
         assert held >= 1 and pipe.stats.units_main >= 1
         assert pipe.stats.units_degraded == 0 and pipe.inflight == 0
         assert pipe.channel.in_use == 0 and not pipe.channel.slots._staged and not pipe.channel.slots._busy
-        assert pipe.contacts == ref.contacts and len(ref.contacts) > 0
+        assert pipe.contacts == want and len(want) > 0
     finally:
-        ref.close()
         pipe.close()
 
 
@@ -105,15 +114,9 @@ def test_live_held_units_reach_the_worker_oldest_first(small_mission):
     """Units held while the worker was busy go to it oldest first, also when a newer unit
     arrives once it is free: a drain (as before a snapshot) then finds nothing out of order
     and the contacts are those of an in-process run."""
-    settings, _cfg, files = small_mission
-    s = _live(settings, warm_up_mpx=0.05, queue_tiles=1000)
-    ref = Pipeline(s, model=PerformanceModel.shipped(), workers=0, mode="live")
+    s, recs, want = _live_reference(small_mission)
     pipe = Pipeline(s, model=PerformanceModel.shipped(), workers=1, mode="live")
     try:
-        recs = list(read_atrlog(files.atrlog))
-        for rec in recs:
-            ref.feed(rec)
-        ref.finish()
         pipe.wait_ready(timeout=120)
         pipe._pool.submit(time.sleep, 1.0)
         half = len(recs) // 2
@@ -126,8 +129,7 @@ def test_live_held_units_reach_the_worker_oldest_first(small_mission):
             if pipe.stats.tiles_in % 4 == 0:
                 pipe.drain()
         pipe.finish()
-        assert pipe.contacts == ref.contacts and len(ref.contacts) > 0
+        assert pipe.contacts == want and len(want) > 0
         assert pipe.channel.in_use == 0 and not pipe.channel.slots._staged
     finally:
-        ref.close()
         pipe.close()
