@@ -168,7 +168,9 @@ class Pipeline:
         self._bg: dict[tuple[int, str], tuple[BackgroundTracker, BackgroundTracker]] = {}
         """Per (leg, side): trackers of the background b(j) and the median m(j)."""
         self._arrival: dict[tuple[str, int], float] = {}
-        self._inflight: deque[tuple[StripUnit, PerformanceModel, Future, DetectJob]] = deque()
+        self._inflight: deque[tuple[StripUnit, PerformanceModel, Future | None, DetectJob]] = deque()
+        """Units submitted and not yet fused, oldest first; the future is None for a unit held
+        in this process (live, ``node.live_main_scores``)."""
         self._inflight_px = 0
         """Pixels of the units in flight (replay back-pressure)."""
         self._timing: dict[int, UnitTiming] = {}
@@ -519,7 +521,7 @@ class Pipeline:
         executor's call queue) ends the search. :func:`detect` is a pure function: the
         result is the same, whoever computes it."""
         for i in range(len(self._inflight) - 1, -1, -1):
-            unit, model, fut, job = self._inflight[i]
+            fut = self._inflight[i][2]
             if fut.done():
                 continue  # done by the worker, or stolen already
             if not fut.cancel():
