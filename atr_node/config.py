@@ -355,6 +355,23 @@ class NodeSettings:
 
 
 @dataclass(frozen=True)
+class RecordingSettings:
+    """Recorded files read by replay, convert, batch and calibrate (XTF, JSF; ICD section 6)."""
+
+    crs: str = ""
+    """Coordinate reference system of a file's positions when they are projected metres (XTF
+    ``NavUnits`` 0), e.g. ``EPSG:32610``; "" = positions are degrees (a projected file then
+    fails at once, naming ``--crs``). The command line's ``--crs`` wins."""
+    altitude: Literal["auto", "altimeter", "sonar"] = "auto"
+    """Altitude used for slant-to-ground conversion: ``altimeter`` as recorded; ``sonar`` from
+    the first bottom return in the image; ``auto`` the recorded one where it is plausible, the
+    image's where it is missing, zero or implausible."""
+
+    def __post_init__(self) -> None:
+        _check(self.crs == self.crs.strip(), "recording.crs", "must not start or end with spaces")
+
+
+@dataclass(frozen=True)
 class Settings:
     """All settings; the root of the TOML file."""
 
@@ -367,6 +384,7 @@ class Settings:
     fusion: FusionSettings = field(default_factory=FusionSettings)
     links: LinkSettings = field(default_factory=LinkSettings)
     node: NodeSettings = field(default_factory=NodeSettings)
+    recording: RecordingSettings = field(default_factory=RecordingSettings)
     source: str | None = field(default=None, compare=False)
     """The file these settings came from (None: built-in defaults)."""
 
