@@ -67,6 +67,11 @@ class SensorSettings:
     sas: bool = True
     altitude_m: float = 14.0
     """Nominal altitude above the seabed (the per-ping altitude from nav wins)."""
+    first_return_band_m: float = 0.5
+    """Slant metres after the first bottom return (R = altitude) that give no evidence: the
+    bright nadir return and its ringing (0.3-0.4 m measured on the real XTF files, whose
+    transmit ring-down lasts as long), which the ground-range conversion stretches over the
+    first metres next to the nadir. 0 keeps them."""
     max_range_m: float = 150.0
     dr_m: float = 0.1
     dx_m: float = 0.1
@@ -77,6 +82,7 @@ class SensorSettings:
                      "max_range_m", "dr_m", "dx_m", "sound_speed_m_s"):
             _check(getattr(self, name) > 0, f"sensor.{name}", "must be > 0")
         _check(self.n_rx >= 1, "sensor.n_rx", "must be >= 1")
+        _check(self.first_return_band_m >= 0, "sensor.first_return_band_m", "must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -131,6 +137,15 @@ class DetectorSettings:
     """Summed-area tables in float64 (exact) or float32 (faster, loses digits)."""
     decimation: int = 1
     """Score every n-th pixel in each direction (speed option; 1 = full resolution)."""
+    objects: bool = True
+    """Seabed objects (``detectors/objects.py``): one detection per detector for an extended
+    object (a wreck), with its extent; bright bands at constant range are background."""
+    object_highlight: float = 2.0
+    """A highlight is smoothed I_n above this many times the unit's median."""
+    object_shadow: float = 0.3
+    """A shadow is smoothed I_n below this many times the unit's median."""
+    max_object_length_m: float = 60.0
+    """A highlight object longer than this is background (no detection)."""
 
     def __post_init__(self) -> None:
         bad = [d for d in self.enabled if d not in DETECTOR_NAMES]
@@ -143,6 +158,10 @@ class DetectorSettings:
         _check(0 < self.min_extent_m <= self.max_extent_m, "detectors.min_extent_m",
                "must be > 0 and <= max_extent_m")
         _check(self.decimation in (1, 2, 4), "detectors.decimation", "must be 1, 2 or 4")
+        _check(self.object_highlight > 1.0, "detectors.object_highlight", "must be > 1")
+        _check(0.0 <= self.object_shadow < 1.0, "detectors.object_shadow", "must be in [0, 1)")
+        _check(self.max_object_length_m >= self.max_extent_m, "detectors.max_object_length_m",
+               "must be >= max_extent_m")
 
 
 @dataclass(frozen=True)
@@ -205,6 +224,60 @@ class SimulationSettings:
         _check(0.0 <= self.sea_state <= 9.0, "simulation.sea_state", "must be in [0, 9]")
 
 
+def _check_span(span: tuple[float, ...], key: str, lo: float, hi: float) -> None:
+    _check(len(span) == 2 and span[0] <= span[1], key, "must be [low, high] with low <= high")
+    _check(lo <= span[0] and span[1] <= hi, key, f"must lie within [{lo}, {hi}]")
+
+
+@dataclass(frozen=True)
+class PopulationSettings:
+    """The injected calibration targets (SPEC sections 4-5; issue 17 item 5).
+
+    Every random target draws, uniformly in each range and independently: a built-in shape,
+    a size factor on all its built-in dimensions, a factor per horizontal axis (length,
+    width) and one on its height, roll and pitch within +-``tilt_deg``, a burial as a fraction
+    of its (tilted) height and a reflectivity in dB on its echo level. A fraction
+    ``nominal_fraction`` of the targets is drawn from the nominal population instead (built-in
+    size, proud, level, 0 dB): with ``threshold_on = "nominal"`` Dobeck's threshold is set on
+    those, and P(y) and the confidence on all. ``mode = "fixed"`` is the population before
+    issue 17: every target nominal (the same draws, hence the same model, as then).
+    Only calibration injection uses this; synthetic missions render their own targets.
+    """
+
+    mode: Literal["varied", "fixed"] = "varied"
+    shapes: tuple[str, ...] = ("cylinder", "cone", "wedge", "sphere")
+    size_scale: tuple[float, ...] = (0.5, 1.5)
+    """Factor on every built-in dimension."""
+    axis_scale: tuple[float, ...] = (0.8, 1.25)
+    """Extra factor drawn separately for the length and the width (aspect of the outline)."""
+    height_scale: tuple[float, ...] = (0.7, 1.4)
+    """Extra factor on the height."""
+    tilt_deg: float = 20.0
+    """Roll and pitch are uniform in [-tilt_deg, tilt_deg]; the target rests on its lowest point."""
+    burial_fraction: tuple[float, ...] = (0.0, 0.5)
+    """Part of the target's height below the seabed."""
+    reflectivity_db: tuple[float, ...] = (-10.0, 10.0)
+    """Echo level relative to the sonar model's (``simulation.target_strength_db``)."""
+    nominal_fraction: float = 0.25
+    """Share of the targets drawn from the nominal population (``mode = "varied"``)."""
+    threshold_on: Literal["nominal", "population"] = "nominal"
+    """Targets Dobeck's rule reads: the nominal ones (thresholds as before issue 17, Pd of the
+    whole population at them) or the whole population (lower thresholds)."""
+
+    def __post_init__(self) -> None:
+        p = "calibration.population"
+        _check(len(self.shapes) >= 1, f"{p}.shapes", "must name at least one shape")
+        bad = [s for s in self.shapes if s not in ("cylinder", "cone", "wedge", "sphere", "box")]
+        _check(not bad, f"{p}.shapes", f"unknown shape(s) {bad}; expected cylinder, cone, wedge, sphere or box")
+        _check_span(self.size_scale, f"{p}.size_scale", 0.05, 20.0)
+        _check_span(self.axis_scale, f"{p}.axis_scale", 0.05, 20.0)
+        _check_span(self.height_scale, f"{p}.height_scale", 0.05, 20.0)
+        _check(0.0 <= self.tilt_deg <= 80.0, f"{p}.tilt_deg", "must be in [0, 80]")
+        _check_span(self.burial_fraction, f"{p}.burial_fraction", 0.0, 0.95)
+        _check_span(self.reflectivity_db, f"{p}.reflectivity_db", -40.0, 40.0)
+        _check(0.0 <= self.nominal_fraction <= 1.0, f"{p}.nominal_fraction", "must be in [0, 1]")
+
+
 @dataclass(frozen=True)
 class CalibrationSettings:
     """Detector performance estimates (SPEC section 5)."""
@@ -216,7 +289,9 @@ class CalibrationSettings:
     range_bin_m: float = 10.0
     online: bool = True
     online_tiles: int = 8
-    """On-line calibration uses this many first tiles of the mission."""
+    """On-line calibration uses this many first tiles of the mission (all of a shorter
+    recording). Replays hold these tiles until the model is ready and use it from tile 1;
+    a live node uses it from the first tile after it arrived (``docs/calibration.md``)."""
     seed: int = 0
     smoothing: Literal["jeffreys", "laplace"] = "jeffreys"
     """Pseudo-counts of the survival functions and Pd: Jeffreys (1/2) or Laplace (1)."""
@@ -224,16 +299,24 @@ class CalibrationSettings:
     """Points of the tabulated confidence c(gamma; tau) from tau to the largest response."""
     online_iterations: int = 10
     """Injection iterations per tile of the on-line calibration (fewer than off-line)."""
+    population: PopulationSettings = field(default_factory=PopulationSettings)
+    """The injected targets (``[calibration.population]``)."""
     online_switch_tile: int = 0
-    """Replays switch to the on-line model at this tile count (0: 2 x online_tiles), waiting
-    for the worker if needed, so the same log gives the same contacts."""
+    """Retired (issue 18): replays now use the on-line model from tile 1, holding the first
+    ``online_tiles`` tiles until it is ready. Still accepted so that older files load; a
+    value other than 0 is ignored with a warning."""
 
     def __post_init__(self) -> None:
         _check(self.targets_per_image >= 1, "calibration.targets_per_image", "must be >= 1")
         _check(self.confidence_points >= 2, "calibration.confidence_points", "must be >= 2")
         _check(self.online_iterations >= 1, "calibration.online_iterations", "must be >= 1")
-        _check(self.online_switch_tile == 0 or self.online_switch_tile >= self.online_tiles,
-               "calibration.online_switch_tile", "must be 0 or >= online_tiles")
+        if self.online_switch_tile != 0:
+            import logging
+
+            logging.getLogger(__name__).warning(
+                "calibration.online_switch_tile = %d ignored: the setting is retired; replays now hold the "
+                "first calibration.online_tiles tiles until the on-line model is ready and use it from "
+                "tile 1 (remove the key)", self.online_switch_tile)
         _check(self.iterations >= 1, "calibration.iterations", "must be >= 1")
         _check(0.0 < self.prior_target < 1.0, "calibration.prior_target", "must be in (0, 1)")
         _check(0.0 < self.pd_target < 1.0, "calibration.pd_target", "must be in (0, 1)")

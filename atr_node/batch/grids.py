@@ -46,6 +46,9 @@ class RecordingDeltas:
     seconds: float
     cpu_s: float = 0.0
     """CPU time of the task's process (wall ``seconds`` minus this = waiting for a core)."""
+    tiles_dropped: int = 0
+    drop_reasons: tuple[tuple[str, int], ...] = ()
+    """``tiles_dropped`` by reason (e.g. ``no usable nav``), sorted."""
 
 
 def recording_deltas(path: str, settings: Settings, model: PerformanceModel, node: str) -> RecordingDeltas:
@@ -60,7 +63,8 @@ def recording_deltas(path: str, settings: Settings, model: PerformanceModel, nod
     pipe = Pipeline(settings, model=model, workers=0, mode="replay")
     try:
         grid = attach_exchange(pipe, node=node)
-        pipe.replay(open_recording(path))
+        pipe.replay(open_recording(path, crs=settings.recording.crs,
+                                    altitude=settings.recording.altitude))
     finally:
         pipe.close()
     st = pipe.stats
@@ -70,7 +74,8 @@ def recording_deltas(path: str, settings: Settings, model: PerformanceModel, nod
                        f"{st.tiles_rejected} tiles rejected): not a recording, or empty")
     return RecordingDeltas(str(path), node, tuple(sorted(set(grid.leg_mission.values()))),
                            tuple(encode_delta(d) for d in grid.outbox), st.tiles_in, st.tiles_rejected, st.pixels,
-                           time.perf_counter() - t0, time.process_time() - c0)
+                           time.perf_counter() - t0, time.process_time() - c0, st.tiles_dropped,
+                           tuple(sorted(st.drop_reasons.items())))
 
 
 @dataclass
@@ -120,11 +125,23 @@ def contacts_of(grid: EvidenceGrid, frame: MissionFrame | None, settings: Settin
     return [c.to_message() for c in sorted(tracker.update(grid, t), key=lambda c: c.id)]
 
 
+def check_positions(paths: Sequence[str | Path], crs: str) -> None:
+    """Fail at once, before any task, on an XTF recording whose positions need a CRS that was
+    not given (rather than in every task and its retries). Files this host cannot see (a remote
+    cluster's paths) are left to their task."""
+    from ..io.xtf_packets import read_positions
+
+    for p in paths:
+        if str(p).lower().endswith(".xtf") and Path(p).is_file():
+            read_positions(p, crs)
+
+
 def run_recordings(paths: Sequence[str | Path], settings: Settings, model: PerformanceModel, engine: Engine, *,
                    progress: Progress | None = None) -> BatchResult:
     """Map every recording to its deltas on ``engine``, reduce, extract contacts."""
     if not paths:
         raise AtrError("batch: no recording given")
+    check_positions(paths, settings.recording.crs)
     items = [(Path(p).name, (str(p), settings, model, node)) for p, node in zip(paths, node_ids(paths))]
     t0 = time.perf_counter()
     outcomes = engine.map(recording_deltas, items, progress=progress)
@@ -133,7 +150,12 @@ def run_recordings(paths: Sequence[str | Path], settings: Settings, model: Perfo
     grid, dset, frame, t_end = reduce_recordings(done, settings)
     contacts = contacts_of(grid, frame, settings, t_end)
     t2 = time.perf_counter()
+    reasons: dict[str, int] = {}
+    for r in done:
+        for k, v in r.drop_reasons:
+            reasons[k] = reasons.get(k, 0) + v
     info = {"tiles_in": sum(r.tiles_in for r in done), "tiles_rejected": sum(r.tiles_rejected for r in done),
+            "tiles_dropped": sum(r.tiles_dropped for r in done), "drop_reasons": reasons,
             "pixels": sum(r.pixels for r in done), "task_s": round(sum(r.seconds for r in done), 3),
             "task_cpu_s": round(sum(r.cpu_s for r in done), 3),
             "missions": sorted({m for r in done for m in r.missions}), "engine": engine.describe()}

@@ -52,4 +52,6 @@ def run_calibration(images: Sequence[CalibrationImage], settings: Any, engine: E
                  "targets_per_image": targets_per_image, "seed": seed, "skipped_images": skipped,
                  "engine": engine.describe()})
     prov.update(_settings_provenance(settings))
-    return Responses(out.detectors, out.target, out.nontarget, out.target_range_m, out.target_shape, prov), outcomes
+    prov["population"]["n_nominal"] = int(out.nominal.sum())
+    return Responses(out.detectors, out.target, out.nontarget, out.target_range_m, out.target_shape, prov,
+                     out.target_traits), outcomes

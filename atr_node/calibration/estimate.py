@@ -19,9 +19,14 @@ from .responses import Responses
 from .stats import confidence_curve, dobeck_threshold, pd_curve, range_edges
 
 
+MIN_NOMINAL = 20
+"""Fewest nominal target responses Dobeck's rule reads with ``threshold_on = "nominal"``;
+with fewer it reads the whole population (and the provenance says so)."""
+
+
 def estimate_detector(x_t: np.ndarray, x_n: np.ndarray, ranges_m: np.ndarray, *, calibration: CalibrationSettings,
-                      default_tau: float, tau: float | None = None,
-                      edges_m: np.ndarray | None = None) -> DetectorPerformance:
+                      default_tau: float, tau: float | None = None, edges_m: np.ndarray | None = None,
+                      tau_from: np.ndarray | None = None) -> DetectorPerformance:
     """One detector's estimates.
 
     Parameters
@@ -34,13 +39,18 @@ def estimate_detector(x_t: np.ndarray, x_n: np.ndarray, ranges_m: np.ndarray, *,
         Threshold used when there is no finite target response (``tau_source = "config"``).
     tau : float, optional
         Force this threshold instead of Dobeck's (``tau_source = "given"``).
+    tau_from : (m,) bool, optional
+        The target responses Dobeck's rule reads (e.g. the nominal population's); default
+        all. The confidence and P(y) always use every target response.
     """
     x_t = np.asarray(x_t, dtype=np.float64)
     finite = x_t[np.isfinite(x_t)]
+    sel = x_t if tau_from is None else x_t[np.asarray(tau_from, dtype=bool)]
+    sel = sel[np.isfinite(sel)]
     if tau is not None:
         source = "given"
-    elif finite.size:
-        tau, source = dobeck_threshold(finite, calibration.pd_target, default=default_tau), "dobeck"
+    elif sel.size:
+        tau, source = dobeck_threshold(sel, calibration.pd_target, default=default_tau), "dobeck"
     else:
         tau, source = float(default_tau), "config"
     conf = confidence_curve(x_t, x_n, tau, prior_target=calibration.prior_target,
@@ -62,11 +72,17 @@ def estimate_model(responses: Responses, *, calibration: CalibrationSettings,
     """
     thresholds = thresholds or ThresholdSettings()
     edges = range_edges(responses.target_range_m, calibration.range_bin_m)
+    # Thresholds on the nominal targets (SPEC 5, Dobeck at pd_target) keep the operating point
+    # of a target of the size and echo the detectors were designed for; the varied rest then
+    # shows, in P(y), how often the targets users meet reach it (issue 17 item 5).
+    nominal = responses.nominal
+    on_nominal = calibration.population.threshold_on == "nominal" and int(nominal.sum()) >= MIN_NOMINAL
+    tau_from = nominal if on_nominal else None
     dets = {}
     for d in responses.detectors:
         dets[d] = estimate_detector(responses.target[d], responses.nontarget[d], responses.target_range_m,
                                     calibration=calibration, default_tau=getattr(thresholds, d),
-                                    tau=None if taus is None else taus.get(d), edges_m=edges)
+                                    tau=None if taus is None else taus.get(d), edges_m=edges, tau_from=tau_from)
     prov: dict[str, Any] = {
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "atr_node_version": __version__,
@@ -78,5 +94,7 @@ def estimate_model(responses: Responses, *, calibration: CalibrationSettings,
     est = {"prior_target": calibration.prior_target, "pd_target": calibration.pd_target,
            "range_bin_m": calibration.range_bin_m, "smoothing": calibration.smoothing,
            "confidence": "P(T | Gamma >= gamma) among responses above tau (SPEC 5, paper eq. 6)",
-           "pd": "detected / injected per range bin, Jeffreys-smoothed, Wilson 95 %; 0 outside the span"}
+           "pd": "detected / injected per range bin, Jeffreys-smoothed, Wilson 95 %; 0 outside the span",
+           "threshold_on": ("nominal" if on_nominal else "population"),
+           "n_threshold_targets": int(nominal.sum()) if on_nominal else int(responses.n_targets)}
     return PerformanceModel(detectors=dets, provenance=prov, estimation=est)

@@ -2,29 +2,39 @@
 
 The node offers every tile to :meth:`OnlineCalibrator.offer` (a copy of the first
 ``calibration.online_tiles`` tiles is queued to the worker without waiting; later tiles cost
-nothing) and asks :meth:`OnlineCalibrator.model_for` which model to use before processing each
-tile. Until the on-line model is ready the node uses the model it was given (or the shipped
-one). The worker runs the same injection calibration as ``atr-node calibrate``
+nothing). Until the on-line model is ready the node uses the model it was given (or the
+shipped one). The worker runs the same injection calibration as ``atr-node calibrate``
 (``online_iterations`` iterations per tile, seed ``calibration.seed``), so the same tiles give
 the same model.
 
 When the node switches:
 
-- live (``deterministic=False``): at the first tile after the worker has delivered; tile
-  processing never waits for it.
-- replay (``deterministic=True``): exactly at tile count ``calibration.online_switch_tile``
-  (0: twice ``online_tiles``), waiting for the worker there if it is not done, so the same log
-  and config always give the same contacts whatever the machine's speed. If the worker fails,
-  the node keeps its model (logged), in every run alike.
+- replay (``deterministic=True``): the node holds its tiles (offered, not yet processed)
+  until the worker has its ``online_tiles`` images, or the input ends first (a short
+  recording); it then waits for the model (:meth:`OnlineCalibrator.wait`) and processes every
+  tile, the held ones first, with it. The switch point, "after image N", depends only on the
+  record sequence, so the same log and config always give the same contacts whatever the
+  machine's speed, and every tile of a recording, however short, uses the on-line model. If
+  the worker fails, the node keeps its model (logged), in every run alike.
+- live (``deterministic=False``): the node cannot hold tiles; it keeps its model until the
+  worker has delivered and switches at the next tile (:meth:`OnlineCalibrator.model_for`),
+  never waiting.
+
+Either way one INFO line says which model each part of the run used and why, and
+:func:`model_report` gives the same for the run's summary.
 """
 
 from __future__ import annotations
 
+import functools
+import json
 import logging
 import multiprocessing as mp
 import os
 import queue
-from typing import Any
+import signal
+import time
+from typing import Any, Callable, Mapping
 
 from ..config import Settings
 from ..errors import ModelFileError
@@ -46,13 +56,25 @@ def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any) -> None:
         os.nice(WORKER_NICE)
     except OSError:
         pass
+    # Ctrl-C in a terminal reaches the whole process group: the node decides (it stops this
+    # worker in close()); dying here would leave a replay waiting for an answer that never comes
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # this process has no log handler (its warnings would reach stderr unformatted): the node
+    # logs the outcome, skipped images and failures included
+    logging.disable(logging.WARNING)
     try:
         from .estimate import estimate_model
         from .responses import collect_responses
 
         images: list[CalibrationImage] = []
+        parent = mp.parent_process()
         while len(images) < n_tiles:
-            item = tiles.get()
+            try:
+                item = tiles.get(timeout=1.0)
+            except queue.Empty:
+                if parent is not None and not parent.is_alive():
+                    return  # the node was killed: no orphan waiting for tiles forever
+                continue
             if isinstance(item, str) and item == _STOP:
                 break
             # Slant-to-ground conversion here, not in the node's process.
@@ -64,7 +86,7 @@ def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any) -> None:
         resp = collect_responses(images, settings=settings, iterations=cal.online_iterations,
                                  targets_per_image=cal.targets_per_image, seed=cal.seed)
         model = estimate_model(resp, calibration=cal, thresholds=settings.detectors.threshold,
-                               provenance={"source": "on-line", "images": [im.name for im in images]})
+                               provenance={"source": "on-line", "offered_images": [im.name for im in images]})
         results.put(("model", model.to_dict()))
     except Exception as exc:  # the worker must report, never die silently
         results.put(("error", f"{type(exc).__name__}: {exc}"))
@@ -76,14 +98,16 @@ class OnlineCalibrator:
     Parameters
     ----------
     settings : Settings
-        ``calibration`` (tiles, iterations, seed, switch tile), detectors, template, sensor.
+        ``calibration`` (tiles, iterations, seed), detectors, template, sensor.
     fallback : PerformanceModel
-        The model used until the on-line one is ready (``--model`` or the shipped one).
+        The model used until the on-line one is ready, and for good if it fails (``--model``
+        or the shipped one).
     deterministic : bool
-        Replay mode: switch exactly at the configured tile count (see the module docstring).
+        Replay mode: the node holds its first tiles and calls :meth:`wait` (see the module
+        docstring); live mode: :meth:`model_for` never waits.
     timeout_s : float
-        Replay mode: the longest wait for the worker at the switch tile before keeping the
-        fallback (a stuck worker must not hang a replay).
+        Replay mode: the longest wait for the worker's answer before keeping the fallback (a
+        stuck worker must not hang a replay).
     """
 
     def __init__(self, settings: Settings, fallback: PerformanceModel, *, deterministic: bool,
@@ -93,12 +117,16 @@ class OnlineCalibrator:
         self.deterministic = deterministic
         self.timeout_s = timeout_s
         self.n_tiles = cal.online_tiles
-        self.switch_tile = cal.online_switch_tile or 2 * cal.online_tiles
+        self.fallback_name = model_name(fallback)
         self._model = fallback
         self._offered = 0
+        self._ended = False
         self._pending: tuple[str, Any] | None = None
         self.switched_at: int | None = None
-        """Tile count at which the on-line model took over (None: not yet)."""
+        """Number (from 1) of the first tile processed with the on-line model (None: none)."""
+        self.images: int | None = None
+        """Images the on-line model was made from (tiles too small for a target are skipped)."""
+        self.skipped = 0
         self.error: str | None = None
         ctx = mp.get_context("spawn")  # no fork of a process that holds sockets and threads
         self._tiles = ctx.Queue(maxsize=self.n_tiles + 1)
@@ -119,10 +147,27 @@ class OnlineCalibrator:
         on :meth:`model_for` always returns :attr:`model`."""
         return self._done
 
+    @property
+    def offered(self) -> int:
+        """Tiles given to the worker so far (at most ``online_tiles``)."""
+        return self._offered
+
+    @property
+    def gathering(self) -> bool:
+        """The worker still takes tiles: not done, fewer than ``online_tiles`` offered and
+        the input not ended."""
+        return not self._done and not self._ended and self._offered < self.n_tiles
+
+    def ready(self) -> bool:
+        """The worker has answered (the answer is taken at the next :meth:`model_for`, or
+        already was). Never blocks."""
+        self._poll(None)
+        return self._done or self._pending is not None
+
     def offer(self, tile: Any) -> None:
         """Offer a tile (:class:`~atr_node.records.tile.Tile`, ground or slant range); only the
         first ``online_tiles`` are used. Never blocks."""
-        if self._offered >= self.n_tiles or self._done:
+        if not self.gathering:
             return
         self._offered += 1
         # The queue's feeder thread pickles the tile in the background: records are never
@@ -131,9 +176,9 @@ class OnlineCalibrator:
 
     def end_of_input(self) -> None:
         """No more tiles will come: calibrate on those offered so far."""
-        if self._offered < self.n_tiles and not self._done:
-            self._offered = self.n_tiles
+        if self.gathering:
             self._tiles.put_nowait(_STOP)
+        self._ended = True
 
     def _poll(self, wait_s: float | None) -> None:
         if self._pending is not None or self._done:
@@ -143,40 +188,86 @@ class OnlineCalibrator:
         except queue.Empty:
             return
 
-    def model_for(self, tiles_done: int) -> PerformanceModel:
-        """The model to use for the next tile, ``tiles_done`` tiles having been processed."""
+    def wait(self, stop: Callable[[], bool] | None = None, *, from_tile: int = 1, poll_s: float = 0.2) -> bool:
+        """Replay: end the worker's input if it is still gathering, wait for its answer and
+        take it (the on-line model, or the fallback kept and ``error`` set).
+
+        Parameters
+        ----------
+        stop : callable, optional
+            Polled every ``poll_s``: when it returns True (a signal to the node), return False
+            at once, nothing taken; a later call waits again.
+        from_tile : int
+            Number (from 1) of the first tile the model will be used for.
+
+        Returns
+        -------
+        bool
+            True when :attr:`done`.
+        """
+        if self._done:
+            return True
+        self.end_of_input()
+        deadline = time.monotonic() + self.timeout_s
+        self._poll(None)
+        if self._pending is None:
+            log.info("on-line calibration: waiting for the model from %d tile(s)", self._offered)
+        while self._pending is None:
+            if stop is not None and stop():
+                return False
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.error = f"no answer after {self.timeout_s:g} s"
+                break
+            self._poll(min(poll_s, left))
+            if self._pending is None and not self._proc.is_alive():
+                self._poll(0.5)  # its answer may still be in the pipe
+                if self._pending is None:
+                    self.error = f"the worker exited with code {self._proc.exitcode} and no answer"
+                    break
+        self._take(from_tile)
+        return True
+
+    def model_for(self, tile_no: int) -> PerformanceModel:
+        """The model for tile number ``tile_no`` (from 1). Live: the fallback until the
+        worker has delivered, then the on-line model (never waits). Replay: waits for the
+        worker (:meth:`wait`) if its answer is not taken yet."""
         if self._done:
             return self._model
         if self.deterministic:
-            if tiles_done < self.switch_tile:
-                return self._model
-            if self._offered < self.n_tiles:
-                self.end_of_input()
-            self._poll(self.timeout_s)
-            if self._pending is None:
-                self.error = f"on-line calibration not done after {self.timeout_s:g} s"
-        else:
-            self._poll(None)
-            if self._pending is None:
-                return self._model
-        self._take(tiles_done)
+            self.wait(from_tile=tile_no)
+            return self._model
+        self._poll(None)
+        if self._pending is not None:
+            self._take(tile_no)
         return self._model
 
-    def _take(self, tiles_done: int) -> None:
+    def _take(self, tile_no: int) -> None:
         kind, payload = self._pending if self._pending is not None else ("error", self.error)
         self._done = True
         if kind == "model":
             try:
-                self._model = PerformanceModel.from_dict(payload, where="on-line calibration")
+                model = PerformanceModel.from_dict(payload, where="on-line calibration")
             except ModelFileError as exc:
                 kind, payload = "error", str(exc)
             else:
-                self.switched_at = tiles_done
-                log.info("switched to the on-line performance model at tile %d", tiles_done)
+                self._model = model
+                self.switched_at = tile_no
+                self.images = int(model.provenance.get("n_images", self._offered))
+                self.skipped = len(model.provenance.get("skipped_images") or ())
         if kind != "model":
             self.error = str(payload)
-            log.warning("on-line calibration failed (%s); keeping the model given", payload)
         self.close()
+        report = model_report(self.outcome(), tiles=None, fallback=self.fallback_name)
+        log.log(logging.INFO if kind == "model" else logging.WARNING, "%s", report["text"])
+
+    def outcome(self) -> dict[str, Any]:
+        """What the calibration did, as plain data (kept in node snapshots; see
+        :func:`model_report`)."""
+        state = "on-line" if self.switched_at is not None else "failed" if self.error else "pending"
+        return {"state": state, "deterministic": self.deterministic, "fallback": self.fallback_name,
+                "offered": self._offered, "of": self.n_tiles, "images": self.images, "skipped": self.skipped,
+                "from_tile": self.switched_at, "error": self.error}
 
     def close(self) -> None:
         """Stop the worker (idempotent)."""
@@ -192,3 +283,72 @@ class OnlineCalibrator:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+@functools.lru_cache(maxsize=1)
+def _shipped_provenance() -> str:
+    return json.dumps(_jsonable(PerformanceModel.shipped().provenance), sort_keys=True)
+
+
+def _jsonable(prov: Any) -> Any:
+    return json.loads(json.dumps(dict(prov), default=str))
+
+
+def model_name(model: PerformanceModel) -> str:
+    """A few words naming ``model``: "on-line model", "shipped model" or "model given"."""
+    prov = model.provenance
+    if prov.get("source") == "on-line":
+        return "on-line model"
+    try:
+        shipped = _shipped_provenance()
+    except ModelFileError:
+        shipped = None
+    return "shipped model" if json.dumps(_jsonable(prov), sort_keys=True) == shipped else "model given"
+
+
+def model_report(outcome: Mapping[str, Any] | None, *, tiles: int | None, fallback: str) -> dict[str, Any]:
+    """Which model each part of a run used, and why: ``outcome`` (:meth:`OnlineCalibrator.outcome`;
+    None: no on-line calibration) plus ``text`` (one line for the log and summary) and
+    ``short`` (a few words, for the replay's end-of-run line).
+
+    Parameters
+    ----------
+    outcome : mapping or None
+        The calibrator's outcome.
+    tiles : int or None
+        Tiles processed in the run (None: not known yet).
+    fallback : str
+        Name of the model used without the on-line one (:func:`model_name`); the outcome's
+        own ``fallback`` takes precedence.
+    """
+    every = f"all {tiles} tiles" if tiles is not None else "every tile"
+    if outcome is None:
+        return {"state": "off", "fallback": fallback, "text": f"on-line calibration off; the {fallback} for {every}",
+                "short": f"{fallback} (on-line calibration off)"}
+    o = dict(outcome)
+    fb = o.get("fallback") or fallback
+    if o["state"] == "on-line":
+        notes = []
+        if o["offered"] < o["of"]:
+            notes.append(f"the recording has {o['offered']} tiles")
+        if o["skipped"]:
+            notes.append(f"{o['skipped']} too small for a target and its context window")
+        images = f"{o['images']} of {o['of']} images" + (f" ({'; '.join(notes)})" if notes else "")
+        t = int(o["from_tile"])
+        if t <= 1:
+            o["text"] = f"on-line calibration: {images}, model used from tile 1"
+            o["short"] = f"on-line model ({o['images']} images)"
+        else:  # live: the node could not wait for it
+            o["text"] = f"tiles 1-{t - 1}: {fb}; on-line model ({images}) from tile {t}"
+            o["short"] = f"{fb} to tile {t - 1}, on-line model from tile {t}"
+    elif o["state"] == "failed":
+        o["text"] = f"on-line calibration failed ({o['error']}); the {fb} for {every}"
+        o["short"] = f"{fb} (on-line calibration failed)"
+    elif not o["offered"]:
+        o["text"] = "on-line calibration: no tile in the input"
+        o["short"] = f"{fb} (no tile)"
+    else:  # the run ended before the worker answered (live)
+        o["text"] = (f"on-line calibration not finished ({o['offered']} of {o['of']} images when the run "
+                     f"ended); the {fb} for {every}")
+        o["short"] = f"{fb} (on-line calibration not finished)"
+    return o

@@ -23,6 +23,9 @@ from ..errors import AtrError
 
 log = logging.getLogger(__name__)
 
+TRAITS: tuple[str, ...] = ("nominal", "reflectivity_db", "height_m")
+"""Per-target traits of the injected population that :func:`collect_image` records."""
+
 
 @dataclass(frozen=True)
 class Responses:
@@ -30,7 +33,9 @@ class Responses:
 
     ``target[d]`` (m,) and ``target_range_m`` (m,), ``target_shape`` (m,) describe the
     injected targets in injection order; ``nontarget[d]`` (k_d,) the clean cells. NaN = the
-    detector did not cover it.
+    detector did not cover it. ``target_traits`` holds per-target arrays (m,) of the injected
+    population (:data:`TRAITS`: ``nominal`` as 0/1, ``reflectivity_db``, ``height_m`` above the
+    seabed); empty when not recorded.
     """
 
     detectors: tuple[str, ...]
@@ -39,9 +44,13 @@ class Responses:
     target_range_m: np.ndarray
     target_shape: tuple[str, ...] = ()
     provenance: Mapping[str, Any] = field(default_factory=dict)
+    target_traits: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         m = np.asarray(self.target_range_m).size
+        for k, v in self.target_traits.items():
+            if np.asarray(v).shape != (m,):
+                raise ValueError(f"target trait {k!r}: expected shape ({m},), got {np.shape(v)}")
         for d in self.detectors:
             if np.asarray(self.target[d]).shape != (m,):
                 raise ValueError(f"target responses of {d!r}: expected shape ({m},), got {np.shape(self.target[d])}")
@@ -57,7 +66,14 @@ class Responses:
         shorter calibration of the same images would have given."""
         n = max(0, int(n_targets))
         return Responses(self.detectors, {d: self.target[d][:n] for d in self.detectors}, dict(self.nontarget),
-                         np.asarray(self.target_range_m)[:n], tuple(self.target_shape[:n]), dict(self.provenance))
+                         np.asarray(self.target_range_m)[:n], tuple(self.target_shape[:n]), dict(self.provenance),
+                         {k: np.asarray(v)[:n] for k, v in self.target_traits.items()})
+
+    @property
+    def nominal(self) -> np.ndarray:
+        """(m,) bool: the targets of the nominal population (all of them when not recorded)."""
+        v = self.target_traits.get("nominal")
+        return np.ones(self.n_targets, dtype=bool) if v is None else np.asarray(v) > 0
 
     @staticmethod
     def concat(parts: Sequence["Responses"]) -> "Responses":
@@ -70,12 +86,15 @@ class Responses:
                 raise ValueError(f"responses of different detectors: {p.detectors} vs {dets}")
         prov = dict(parts[0].provenance)
         prov["n_images"] = sum(int(p.provenance.get("n_images", 1)) for p in parts)
+        # A trait pools only when every part recorded it.
+        keys = [k for k in parts[0].target_traits if all(k in p.target_traits for p in parts)]
+        traits = {k: np.concatenate([np.asarray(p.target_traits[k], dtype=np.float64) for p in parts]) for k in keys}
         return Responses(
             dets,
             {d: np.concatenate([np.asarray(p.target[d], dtype=np.float64) for p in parts]) for d in dets},
             {d: np.concatenate([np.asarray(p.nontarget[d], dtype=np.float64) for p in parts]) for d in dets},
             np.concatenate([np.asarray(p.target_range_m, dtype=np.float64) for p in parts]),
-            tuple(s for p in parts for s in p.target_shape), prov)
+            tuple(s for p in parts for s in p.target_shape), prov, traits)
 
 
 # ----------------------------------------------------------------------------------------
@@ -169,7 +188,17 @@ def _settings_provenance(settings: Any) -> dict[str, Any]:
     import dataclasses
 
     return {"sensor": dataclasses.asdict(settings.sensor), "template": dataclasses.asdict(settings.template),
-            "simulation": dataclasses.asdict(settings.simulation)}
+            "simulation": dataclasses.asdict(settings.simulation),
+            "population": dataclasses.asdict(_population(settings))}
+
+
+def _population(settings: Any) -> Any:
+    """The injected population of ``settings`` (the default one for settings without a
+    ``calibration`` section)."""
+    from ..config import PopulationSettings
+
+    cal = getattr(settings, "calibration", None)
+    return getattr(cal, "population", None) or PopulationSettings()
 
 
 def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, targets_per_image: int,
@@ -218,10 +247,12 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
     target: dict[str, list[float]] = {d: [] for d in dets}
     ranges: list[float] = []
     shapes: list[str] = []
+    traits: dict[str, list[float]] = {k: [] for k in TRAITS}
+    population = _population(settings)
     for _ in range(iterations):
         injected, placed = inject_targets(px, range0_m=image.range0_m, n_targets=targets_per_image, rng=rng,
                                           sensor=settings.sensor, simulation=settings.simulation,
-                                          template=settings.template, g=g, **geo)
+                                          template=settings.template, g=g, population=population, **geo)
         for t in placed:
             i, j = int(t.row), int(t.col)
             s_j = int(geom.shadow_px[min(max(j, 0), cols - 1)])
@@ -238,12 +269,16 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
                                             echo_px=geom.echo_px, shadow_px=s_j))
             ranges.append(float(t.range_m))
             shapes.append(str(t.shape))
+            traits["nominal"].append(float(t.nominal))
+            traits["reflectivity_db"].append(float(t.reflectivity_db))
+            traits["height_m"].append(float(t.height_m))
         if progress is not None:
             progress()
     prov = {"n_images": 1, "images": [image.name], "image_shape": [rows, cols], "iterations": iterations,
             "targets_per_image": targets_per_image}
     return Responses(dets, {d: np.asarray(v, dtype=np.float64) for d, v in target.items()}, nontarget,
-                     np.asarray(ranges, dtype=np.float64), tuple(shapes), prov)
+                     np.asarray(ranges, dtype=np.float64), tuple(shapes), prov,
+                     {k: np.asarray(v, dtype=np.float64) for k, v in traits.items()})
 
 
 def _room_for_targets(image: CalibrationImage, settings: Any) -> bool:
@@ -288,4 +323,6 @@ def collect_responses(images: Sequence[CalibrationImage], *, settings: Any, iter
     prov.update({"images": [n for p in parts for n in p.provenance["images"]], "iterations": iterations,
                  "targets_per_image": targets_per_image, "seed": seed, "skipped_images": skipped})
     prov.update(_settings_provenance(settings))
-    return Responses(out.detectors, out.target, out.nontarget, out.target_range_m, out.target_shape, prov)
+    prov["population"]["n_nominal"] = int(out.nominal.sum())
+    return Responses(out.detectors, out.target, out.nontarget, out.target_range_m, out.target_shape, prov,
+                     out.target_traits)

@@ -78,15 +78,15 @@ def synthetic_images(n: int, *, settings: Any, rows: int, cols: int, seed: int, 
     return out
 
 
-def images_from_recording(path: str | Path, *, settings: Any, max_images: int) -> list[CalibrationImage]:
+def images_from_recording(path: str | Path, *, settings: Any, max_images: int, crs: str = "") -> list[CalibrationImage]:
     """The first ``max_images`` sonar tiles of a recording (``.atrlog``, or ``.xtf`` through
-    :func:`atr_node.io.xtf.iter_xtf_records`)."""
+    :func:`atr_node.io.xtf.iter_xtf_records`, its positions in ``crs`` if projected metres)."""
     from ..records.tile import Tile
 
     if str(path).lower().endswith(".xtf"):
         from ..io.xtf import iter_xtf_records
 
-        records = iter_xtf_records(path)
+        records = iter_xtf_records(path, altitude=settings.recording.altitude, crs=crs)
     else:
         from ..io.atrlog import read_atrlog
 
@@ -116,8 +116,9 @@ def image_from_picture(path: str | Path, *, pixel_m: float, range0_m: float, alt
 
 
 def images_from_paths(paths: Sequence[str | Path], *, settings: Any, max_images: int, pixel_m: float | None,
-                      range0_m: float | None) -> list[CalibrationImage]:
-    """Images from recordings (``.atrlog``, ``.xtf``) and pictures (anything else OpenCV reads)."""
+                      range0_m: float | None, crs: str = "") -> list[CalibrationImage]:
+    """Images from recordings (``.atrlog``, ``.xtf``; ``crs`` of XTF positions in projected
+    metres, ``--crs``) and pictures (anything else OpenCV reads)."""
     sen = settings.sensor
     out: list[CalibrationImage] = []
     for p in paths:
@@ -125,7 +126,7 @@ def images_from_paths(paths: Sequence[str | Path], *, settings: Any, max_images:
         if not p.exists():
             raise AtrError(f"{p}: no such file")
         if p.suffix.lower() in (".atrlog", ".xtf"):
-            out.extend(images_from_recording(p, settings=settings, max_images=max_images))
+            out.extend(images_from_recording(p, settings=settings, max_images=max_images, crs=crs))
         else:
             out.append(image_from_picture(p, pixel_m=pixel_m or sen.dr_m,
                                           range0_m=2.0 * sen.altitude_m if range0_m is None else range0_m,

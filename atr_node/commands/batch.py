@@ -31,6 +31,7 @@ import time
 
 from ..config import load_settings
 from ..errors import AtrError
+from ._crs import add_crs_argument, resolve_crs
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,6 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid-out", metavar="FILE", help="write the merged evidence grid (.npz snapshot)")
     parser.add_argument("--summary", metavar="FILE", help="write timings, counters and failures as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
+    add_crs_argument(parser)
     cal = parser.add_argument_group("calibration Monte Carlo (--calibrate)")
     cal.add_argument("--calibrate", action="store_true", help="run the calibration Monte Carlo instead")
     cal.add_argument("--input", nargs="*", default=[], metavar="PATH",
@@ -96,6 +98,11 @@ def run(args: argparse.Namespace) -> int:
     # Dask logs every worker start and stop at INFO: keep them for -v and -vv
     dask_log_level(logging.INFO if getattr(args, "verbose", 0) else logging.ERROR)
     settings = load_settings(args.config)
+    crs = resolve_crs(getattr(args, "crs", None), settings)
+    if crs != settings.recording.crs:  # --crs wins; the tasks read it from their settings
+        import dataclasses
+
+        settings = dataclasses.replace(settings, recording=dataclasses.replace(settings.recording, crs=crs))
     if args.calibrate:
         return _calibrate(args, settings)
     if not args.recordings:
@@ -103,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
     from ..batch.grids import run_recordings
     from ..calibration.model import PerformanceModel
     from ..node.service import write_contacts
+
+    from .replay import dropped_text
 
     model = PerformanceModel.load(args.model) if args.model else PerformanceModel.shipped()
     t0 = time.perf_counter()
@@ -128,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
         with open(args.summary, "w") as fh:
             json.dump(summary, fh, indent=2)
     print(f"atr-node batch: {len(args.recordings) - bad}/{len(args.recordings)} recordings, {res.deltas} deltas, "
-          f"{summary['tiles_in']} tiles, {len(res.contacts)} contacts; map {res.map_s:.1f} s, "
+          f"{summary['tiles_in']} tiles ({dropped_text(summary)}), {len(res.contacts)} contacts; "
+          f"map {res.map_s:.1f} s, "
           f"reduce {res.reduce_s:.2f} s, wall {wall:.1f} s", file=sys.stderr)
     return 1 if bad else 0
 
@@ -144,7 +154,7 @@ def _calibrate(args: argparse.Namespace, settings) -> int:
     iterations, targets, seed = calibration_counts(args, cal)
     if args.input:
         images = images_from_paths(args.input, settings=settings, max_images=args.max_images, pixel_m=None,
-                                   range0_m=None)
+                                   range0_m=None, crs=settings.recording.crs)
     else:
         images = synthetic_images(args.synthetic, settings=settings, rows=args.rows, cols=args.cols, seed=seed,
                                   seabed=settings.simulation.seabed)

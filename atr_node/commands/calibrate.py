@@ -24,6 +24,7 @@ from pathlib import Path
 
 from ..config import load_settings
 from ..errors import AtrError
+from ._crs import add_crs_argument, resolve_crs
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,6 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="write confidence.png and pyr.png there (default: next to --out)")
     parser.add_argument("--no-plots", action="store_true", help="write no figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_crs_argument(parser)
 
 
 class ProgressBar:
@@ -98,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
     seabed = args.seabed or settings.simulation.seabed
     if args.input:
         images = images_from_paths(args.input, settings=settings, max_images=args.max_images,
-                                   pixel_m=args.pixel_m, range0_m=args.range0_m)
+                                   pixel_m=args.pixel_m, range0_m=args.range0_m,
+                                   crs=resolve_crs(getattr(args, "crs", None), settings))
         source = ", ".join(str(p) for p in args.input)
     else:
         images = synthetic_images(args.synthetic, settings=settings, rows=args.rows, cols=args.cols,

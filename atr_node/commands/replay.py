@@ -1,15 +1,20 @@
 """Feed a recording through the node's pipeline, exactly as aboard (ICD section 6).
 
-The recording is an .atrlog (ICD section 4) or an .xtf side-scan file. Records are paced at
+The recording is an .atrlog (ICD section 4), an .xtf or an EdgeTech .jsf side-scan file (the
+JSF's first side-scan subsystem; convert it with --subsystem to pick another). Records are paced at
 their recorded times times --speed (or as fast as possible with --speed max); the pipeline
-is the on-vehicle one in replay mode: it never degrades or drops, so the same log and
-options always give the same contacts. Contacts and heartbeats are published on ZeroMQ as
+is the on-vehicle one in replay mode: it never degrades or drops for load, so the same log and
+options always give the same contacts. Tiles with no usable navigation are dropped and
+counted by reason in the end-of-run line, the heartbeat's tiles_dropped and --summary. XTF
+positions in projected metres (NavUnits 0) need --crs (e.g. --crs EPSG:32610): without it
+such a file fails at once. Contacts and heartbeats are published on ZeroMQ as
 in ICD section 3; --contacts-out writes the final state of every contact as JSON lines.
 
 With --state-dir, the node snapshots there as it goes; run the same command again after a
 crash (even SIGKILL) and it resumes from the last snapshot and ends with the same contacts.
 
-Exit status: 0 at the end of the log, 1 on an error (bad config, unreadable model), 130 when
+Exit status: 0 at the end of the log, 1 on an error (bad config, unreadable model, a
+recording that needs --crs), 130 when
 interrupted (after a snapshot when --state-dir is given).
 """
 
@@ -23,12 +28,13 @@ import sys
 import time
 
 from ..config import load_settings
+from ._crs import add_crs_argument, resolve_crs
 
 log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log", metavar="LOG", help="recording: .atrlog or .xtf")
+    parser.add_argument("log", metavar="LOG", help="recording: .atrlog, .xtf or .jsf")
     parser.add_argument("--config", metavar="FILE", help="TOML settings (default: built-in defaults)")
     parser.add_argument("--model", metavar="FILE", help="performance model (default: the one shipped)")
     parser.add_argument("--online-calibration", choices=("on", "off"), default="on",
@@ -45,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="1: detection in a worker process (both cores); 0: one process")
     parser.add_argument("--summary", metavar="FILE", help="write run counters and timings as JSON")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
+    add_crs_argument(parser)
 
 
 def _speed(text: str) -> float | None:
@@ -79,6 +86,9 @@ def run(args: argparse.Namespace) -> int:
 
     settings = load_settings(args.config)
     speed = _speed(args.speed)
+    # opened first: a recording that cannot be read (or needs --crs) fails before the node starts
+    recording = open_recording(args.log, crs=resolve_crs(getattr(args, "crs", None), settings),
+                               altitude=settings.recording.altitude)
     model, online = build_model(settings, args.model, args.online_calibration, deterministic=True)
     publish = args.publish if args.publish is not None else settings.links.publish_endpoint
     publish = None if publish in ("", "none") else publish
@@ -88,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     try:
         skip = service.resume()
-        records = itertools.islice(open_recording(args.log), skip, None)
+        records = itertools.islice(recording, skip, None)
         source = IterLink(records, name=str(args.log))
         link = Paced(source, speed) if speed is not None else source
         progress = _Progress(service, quiet=args.quiet or not sys.stderr.isatty())
@@ -108,11 +118,18 @@ def run(args: argparse.Namespace) -> int:
                 json.dump(summary, fh, indent=2, default=str)
         live = sum(1 for c in contacts if c["state"] != "withdrawn")
         print(f"atr-node replay: {summary['tiles_in']} tiles in, {summary['tiles_done']} done, "
-              f"{summary['tiles_rejected']} rejected; {live} contacts ({len(contacts)} ever); "
-              f"{summary['mpx_per_s']} Mpx/s over {wall:.1f} s", file=sys.stderr)
+              f"{summary['tiles_rejected']} rejected, {dropped_text(summary)}; {live} contacts ({len(contacts)} ever); "
+              f"{summary['mpx_per_s']} Mpx/s over {wall:.1f} s; {summary['model']['short']}", file=sys.stderr)
         return 0 if ended else 130
     finally:
         service.close()
+
+
+def dropped_text(summary: dict) -> str:
+    """``4 dropped (no usable nav x 4)``: the tiles dropped and why, for end-of-run lines."""
+    reasons = summary.get("drop_reasons") or {}
+    detail = ", ".join(f"{k} x {v}" for k, v in sorted(reasons.items()))
+    return f"{summary['tiles_dropped']} dropped" + (f" ({detail})" if detail else "")
 
 
 class _Progress:

@@ -49,6 +49,13 @@ class Detection:
     """Component bounding-box length along-track, metres."""
     n_pixels: int
     """Pixels in the component."""
+    length_m: float | None = None
+    """Extended object only (:mod:`.objects`): length of its long axis, metres; else None."""
+    width_m: float | None = None
+    """Extended object only: its extent across the long axis, metres."""
+    axis_deg: float | None = None
+    """Extended object only: direction of the long axis in the tile, degrees in [-90, 90):
+    0 along-track (increasing rows), +90 towards increasing range."""
 
 
 def find_detections(score: np.ndarray, tau: float, *, detector: str, range0_m: float, dr_m: float,

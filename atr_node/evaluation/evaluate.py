@@ -139,7 +139,8 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
 def _run(settings, log_path, *, model, online, mosaic, progress, sweep: bool) -> EvaluationRun:
     from ..node.service import open_recording
 
-    return run_pipeline(settings, open_recording(log_path), model=model, online=online, progress=progress,
+    return run_pipeline(settings, open_recording(log_path, altitude=settings.recording.altitude), model=model,
+                        online=online, progress=progress,
                         keep_pixels=mosaic.add if mosaic is not None else None,
                         sweep_factors=SWEEP_FACTORS if sweep else ())
 

@@ -7,7 +7,8 @@ on ``arr[slots]``. Freed slots (chunks of an open leg committed early) are reuse
 :class:`LegLayer` holds the evidence of one open leg, per (chunk, detector, cell): the
 maximum T mass of the detections whose gate reached the cell and the maximum Pd over the
 covered pixels of the cell, ``-1`` meaning none. :func:`layer_terms` turns a layer into the
-log terms the leg adds to the accumulators, one piece per (leg, detector, cell).
+log terms the leg adds to the accumulators, one piece per (leg, detector, cell), T mass
+only on cells the same (leg, detector) covered (one footprint, SPEC 6.1).
 """
 
 from __future__ import annotations
@@ -121,8 +122,9 @@ def layer_terms(p: np.ndarray, eps: float, *, per_detector: bool = True
                 ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray | None]:
     """Log terms one leg adds, from its layer ``p`` (K, n_det, 2, nn) (SPEC sections 6-7).
 
-    Per (detector, cell): T evidence ``log1p(-c)`` where a detection's gate reached the cell,
-    else notT evidence ``log1p(-Pd)`` where the detector covered it, else nothing; masses
+    Per (detector, cell): T evidence ``log1p(-c)`` where a detection's gate reached the cell
+    and the detector covered it (one footprint, SPEC 6.1), else notT evidence ``log1p(-Pd)``
+    where the detector covered it, else nothing; masses
     clamped to ``1 - eps`` (SPEC section 6).
 
     Parameters
@@ -147,17 +149,25 @@ def layer_terms(p: np.ndarray, eps: float, *, per_detector: bool = True
 
 def layer_terms_covered(p: np.ndarray, eps: float, *, per_detector: bool = True, coverage: bool = True
                         ) -> tuple[np.ndarray, np.ndarray, int, np.ndarray | None, np.ndarray | None]:
-    """:func:`layer_terms`, and the (K, nn) bool cells covered by some detector (a value
-    >= 0 anywhere in the layer: the coverage bitmap of the leg), from the same masks
-    (None if not ``coverage``)."""
+    """:func:`layer_terms`, and the (K, nn) bool cells covered by some detector (a Pd
+    value >= 0 in the layer: the coverage bitmap of the leg; a gate's T mass alone does not
+    cover a cell), from the same masks (None if not ``coverage``)."""
     c, q = p[:, :, 0], p[:, :, 1]
     has_t = c >= 0.0
-    has_n = q >= 0.0
-    has_n &= ~has_t  # the gate excludes notT: T wins for this (leg, detector)
+    has_n = q >= 0.0  # this (leg, detector) covered the cell: its footprint
+    covered = has_n.any(axis=1) if coverage else None
+    # the gate excludes notT: T wins for this (leg, detector). With has_t clipped to the
+    # footprint below, has_n & ~clipped == has_n & ~has_t: no need to clip it first
+    has_n &= ~has_t
     top = 1.0 - eps
     # T evidence is rare (near detections): its terms only in the chunks that hold some
     rows_t = np.flatnonzero(has_t.any(axis=(1, 2)))
-    c_t, has_ct = c[rows_t], has_t[rows_t]
+    # one footprint for T and notT (SPEC 6.1): a gate's T mass counts only on cells this
+    # (leg, detector) covered, where it could as well have given notT. Clipped here, when
+    # the terms are formed, not when the gate is deposited: the leg's footprint is complete
+    # only once its later tile cores arrived, and a maximum layer then clipped is free of
+    # the tile cut, of the order of arrival and of merges (open layers combine by maximum)
+    c_t, has_ct = c[rows_t], has_t[rows_t] & (q[rows_t] >= 0.0)
     n_clamped = int(np.count_nonzero(has_ct & (c_t > top)) + np.count_nonzero(has_n & (q > top)))
     # per (detector, cell) term log1p(-min(|m|, top)) where there is evidence, +0.0 elsewhere
     # (|m|: a -0.0 mass gives -0.0 as ever). Computed on contiguous copies, in place: a
@@ -168,10 +178,6 @@ def layer_terms_covered(p: np.ndarray, eps: float, *, per_detector: bool = True,
     d_lt = np.zeros_like(d_ln)  # chunks without T: a sum of +0.0 terms
     if t_t is not None:
         d_lt[rows_t] = _sum_detectors(t_t, t_t.shape)
-    covered = None
-    if coverage:
-        has_n |= has_t  # c >= 0 or q >= 0
-        covered = has_n.any(axis=1)
     if not per_detector:
         return d_lt, d_ln, n_clamped, None, covered
     terms = np.zeros(p.shape)

@@ -2,16 +2,18 @@
 
 A contact is an 8-connected region of cells whose Bel(T) is at least ``withdraw_bel``
 holding a cell at ``report_bel`` or more (hysteresis: a contact is born at ``report_bel``
-and lives until its region falls below ``withdraw_bel``). A region is a union of association
-gates around detections, so objects a few metres apart can share one: a region whose
-detections form several groups (each within the gate of its strongest detection) is split, each cell going to
-the nearest group. A contact's position is the belief-weighted centroid of its cell centres; ``bel``, ``pl`` and ``m_theta`` are
-those of the region's peak cell; ``sigma_m`` is the belief-weighted spread of the region
-(per-axis RMS, plus a cell's quantisation ``cell_m / sqrt(12)``), which the association gate
-(navigation uncertainty plus template size) dominates.
+and lives until its region falls below ``withdraw_bel``) and at least one detection (the
+cell of a detection record lies in it): a region with no detection behind it is never a
+contact, neither born nor kept alive (SPEC 7). A region is a union of association gates
+around detections, so objects a few metres apart can share one: a region whose detections
+form several groups (each within the gate of its strongest detection) is split, each cell
+going to the nearest group. A contact's position comes from its detections
+(:func:`detection_position`: their confidence-weighted mean; ``sigma_m`` their spread plus
+``nav_sigma_m`` in quadrature); ``bel``, ``pl`` and ``m_theta`` are those of the region's
+peak cell.
 
 Ids stay stable: after each update, regions are matched one-to-one to the live contacts by
-nearest centroid within the association gate; a region without a match becomes a new
+nearest position within the association gate; a region without a match becomes a new
 contact, a live contact without a region is withdrawn. Only chunks of the grid changed since
 the last update are re-evaluated (``EvidenceGrid.changed_since``).
 """
@@ -19,6 +21,8 @@ the last update are re-evaluated (``EvidenceGrid.changed_since``).
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,6 +35,7 @@ from ..config import FusionSettings
 from ..geo import MissionFrame
 from .baselines import leader_groups
 from .grid import EvidenceGrid
+from .observation import DetectionRecord, axis_heading_deg
 from .mass import closed_form
 
 STATES = ("new", "update", "withdrawn")
@@ -100,6 +105,13 @@ class Contact:
     detections: int
     detectors: tuple[str, ...]
     legs: tuple[int, ...]
+    length_m: float | None = None
+    """(ICD v1.1, optional) An extended object (a wreck): length of its long axis; None (not
+    in the message) for any other contact."""
+    width_m: float | None = None
+    """(v1.1, optional) Its extent across the long axis."""
+    heading_deg: float | None = None
+    """(v1.1, optional) True heading of its long axis, in [0, 180)."""
 
     def __post_init__(self) -> None:
         if self.state not in STATES:
@@ -112,7 +124,8 @@ class Contact:
                 "north_m": float(self.north_m), "sigma_m": float(self.sigma_m), "bel": float(self.bel),
                 "pl": float(self.pl), "m_theta": float(self.m_theta), "looks": int(self.looks),
                 "detections": int(self.detections), "detectors": [str(d) for d in self.detectors],
-                "legs": [int(x) for x in self.legs]}
+                "legs": [int(x) for x in self.legs],
+                **{k: float(getattr(self, k)) for k in EXTENT_FIELDS if getattr(self, k) is not None}}
 
     @classmethod
     def from_message(cls, m: dict[str, Any]) -> "Contact":
@@ -128,6 +141,25 @@ class Contact:
 
 
 _CONTENT_FIELDS = tuple(f.name for f in dataclasses.fields(Contact) if f.name not in ("state", "t"))
+EXTENT_FIELDS = ("length_m", "width_m", "heading_deg")
+"""The optional extent of a contact (ICD v1.1 section 3), all three or none."""
+
+
+def extent_fields(detections: Sequence[DetectionRecord], frame: MissionFrame) -> dict[str, float | None]:
+    """A contact's extent from its detections: that of the longest extended object among them
+    (the most complete view: a wreck cut by a unit's edge is seen in parts), its grid
+    heading turned true (plus the meridian convergence at its position); None when no
+    detection carries one (``detectors/objects.py``)."""
+    best = None
+    for r in detections:
+        if r.length_m is not None and (best is None or r.length_m > best.length_m):
+            best = r
+    if best is None:
+        return dict.fromkeys(EXTENT_FIELDS)
+    lat, lon = frame.to_latlon(best.east_m, best.north_m)
+    conv, _ = frame.grid_factors(lat, lon)
+    return {"length_m": float(best.length_m), "width_m": float(best.width_m),
+            "heading_deg": axis_heading_deg(best.heading_deg + float(conv))}
 
 
 def _one_to_one(pairs: list[tuple[float, int, int]]) -> dict[int, int]:
@@ -143,23 +175,50 @@ def _one_to_one(pairs: list[tuple[float, int, int]]) -> dict[int, int]:
     return comp_id
 
 
-def _component_stats(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, bel: np.ndarray, lab: np.ndarray,
-                     n_comp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per component label: belief-weighted centroid (east, north), spread ``sigma_m`` and
-    peak cell (index of its highest Bel(T), the last such cell on a tie)."""
-    e, nn_ = grid.cell_centre(iy, ix)
-    w = np.bincount(lab, weights=bel, minlength=n_comp)
-    ce = np.bincount(lab, weights=bel * e, minlength=n_comp) / np.maximum(w, 1e-300)
-    cn = np.bincount(lab, weights=bel * nn_, minlength=n_comp) / np.maximum(w, 1e-300)
-    var = np.bincount(lab, weights=bel * ((e - ce[lab]) ** 2 + (nn_ - cn[lab]) ** 2), minlength=n_comp)
-    sigma = np.sqrt(0.5 * var / np.maximum(w, 1e-300) + grid.cell_m ** 2 / 12.0)
+def detection_position(detections: Sequence[DetectionRecord], idx: Sequence[int], *, nav_sigma_m: float
+                       ) -> tuple[float, float, float]:
+    """Position of a contact from the detections behind it (SPEC 7): (east_m, north_m, sigma_m).
+
+    The position is the confidence-weighted mean of the detections' positions (equal
+    weights when every confidence is 0). ``sigma_m`` is the 1-sigma horizontal uncertainty
+    (ICD section 3): ``sqrt(s^2 + nav_sigma_m^2)`` with ``s^2 = sum w_i |x_i - x|^2 / (2 sum w_i)``
+    the confidence-weighted per-axis variance of the detections about the mean. The
+    navigation part is not divided by the number of detections: the detectors of a look
+    read the same pixels, and the legs of a mission share the INS drift.
+
+    Sums are ``math.fsum`` (correctly rounded): the result depends on the set of detections
+    only, not on their order, so the incremental and full extractions agree bit for bit.
+
+    Parameters
+    ----------
+    detections : sequence of DetectionRecord
+        The grid's detection records (``EvidenceGrid.detections``).
+    idx : sequence of int
+        Indices into ``detections`` of the contact's detections (at least one).
+    nav_sigma_m : float
+        1-sigma navigation uncertainty (``fusion.nav_sigma_m``).
+    """
+    recs = [detections[i] for i in idx]
+    w = [r.confidence for r in recs]
+    if not math.fsum(w) > 0.0:
+        w = [1.0] * len(recs)
+    sw = math.fsum(w)
+    e = math.fsum(wi * r.east_m for wi, r in zip(w, recs)) / sw
+    n = math.fsum(wi * r.north_m for wi, r in zip(w, recs)) / sw
+    var = math.fsum(wi * ((r.east_m - e) ** 2 + (r.north_m - n) ** 2) for wi, r in zip(w, recs)) / sw
+    return e, n, math.sqrt(0.5 * var + float(nav_sigma_m) ** 2)
+
+
+def _peaks(bel: np.ndarray, lab: np.ndarray, n_comp: int) -> np.ndarray:
+    """Per component label, its peak cell: index of its highest Bel(T), the last such cell on
+    a tie (the position comes from the detections, :func:`detection_position`)."""
     # the peak: the last of a stable sort by (label, bel)
     top = np.full(n_comp, -np.inf)
     np.maximum.at(top, lab, bel)
     at_top = np.flatnonzero(bel == top[lab])
     peak = np.zeros(n_comp, dtype=np.int64)
     np.maximum.at(peak, lab[at_top], at_top)
-    return ce, cn, sigma, peak
+    return peak
 
 
 def label_cells(iy: np.ndarray, ix: np.ndarray) -> tuple[int, np.ndarray]:
@@ -311,7 +370,18 @@ class ContactTracker:
         n_reg, reg = label_cells(iy, ix)
         det_reg = self._detection_labels(grid, iy, ix, reg)
         lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg)
-        ce, cn, sigma, peak = _component_stats(grid, iy, ix, bel, lab, n_comp)
+        peak = _peaks(bel, lab, n_comp)
+        # detections of each component: one stable sort, not a scan of all detections per
+        # component (same members, same order)
+        d_order = np.argsort(det_lab, kind="stable")
+        d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1))
+        members = [d_order[d_bounds[j]:d_bounds[j + 1]].tolist() for j in range(n_comp)]
+        # position from the detections behind a component (SPEC 7); one without any is never a
+        # contact: NaN, so it matches no live contact (NaN <= gate is false) and is skipped below
+        ce, cn, sigma = np.full(n_comp, np.nan), np.full(n_comp, np.nan), np.full(n_comp, np.nan)
+        for j, m in enumerate(members):
+            if m:
+                ce[j], cn[j], sigma[j] = detection_position(grid.detections, m, nav_sigma_m=self.fusion.nav_sigma_m)
         # one-to-one matching, nearest first, within the gate (one distance matrix, live
         # contacts x components; the same element-wise hypot as one row at a time)
         pairs = []
@@ -324,23 +394,21 @@ class ContactTracker:
             pairs = list(zip(d[ii, jj].tolist(), [cids[i] for i in ii.tolist()], jj.tolist()))
         comp_id = _one_to_one(pairs)
         out: list[Contact] = []
-        # detections of each component: one stable sort, not a scan of all detections per
-        # component (same members, same order)
-        d_order = np.argsort(det_lab, kind="stable")
-        d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1))
         for j in range(n_comp):
+            if not members[j]:
+                continue  # a region with no detection behind it is never a contact (SPEC 7)
             p = peak[j]
             if j not in comp_id and bel[p] < self.fusion.report_bel:
                 continue
             cid = comp_id.get(j)
             state = "update" if cid is not None else "new"
             legs = tuple(grid.legs_at(int(iy[p]), int(ix[p])))
-            dets = [grid.detections[i] for i in d_order[d_bounds[j]:d_bounds[j + 1]].tolist()]
+            dets = [grid.detections[i] for i in members[j]]
             names = {r.detector for r in dets}
             fields = dict(east_m=float(ce[j]), north_m=float(cn[j]), sigma_m=float(sigma[j]), bel=float(bel[p]),
                           pl=float(1.0 - mn[p]), m_theta=float(mth[p]), looks=len(legs), detections=len(dets),
                           detectors=tuple(d for d in grid.detectors if d in names),
-                          legs=legs)
+                          legs=legs, **extent_fields(dets, self.frame))
             if state == "update":
                 old = self.live[cid]
                 # lat/lon are a function of (east, north): equal fields mean equal content
@@ -451,9 +519,9 @@ class ContactTracker:
             det_idx, det_reg = det_idx[hit], det_reg[hit]
         extras: list[tuple[int, int]] = []
         lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, det_idx, extras)
-        # the full extraction's statistics on a subset of its cells (each component's cells in
-        # the same order: the same sums, bit for bit)
-        ce, cn, sigma, peak = _component_stats(grid, iy, ix, bel, lab, n_comp)
+        # the full extraction's peaks on a subset of its cells (each component's cells in the
+        # same order: the same peaks)
+        peak = _peaks(bel, lab, n_comp)
         d_order = np.argsort(det_lab, kind="stable")
         d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1)).tolist()
         r_order = np.argsort(reg, kind="stable")
@@ -467,9 +535,13 @@ class ContactTracker:
             else:
                 r, g = extras[j - n_reg]
                 key = (1, first[r], g)
-            comps.append(_Component(key, float(ce[j]), float(cn[j]), float(sigma[j]), float(bel[p]), float(mn[p]),
-                                    float(mth[p]), int(iy[p]), int(ix[p]),
-                                    det_idx[d_order[d_bounds[j]:d_bounds[j + 1]]].tolist()))
+            dl = det_idx[d_order[d_bounds[j]:d_bounds[j + 1]]].tolist()
+            # position from its detections (SPEC 7); without any it is kept for the region's
+            # bookkeeping but never published (_publish)
+            ce, cn, sigma = (detection_position(grid.detections, dl, nav_sigma_m=self.fusion.nav_sigma_m) if dl
+                             else (math.nan, math.nan, math.nan))
+            comps.append(_Component(key, ce, cn, sigma, float(bel[p]), float(mn[p]),
+                                    float(mth[p]), int(iy[p]), int(ix[p]), dl))
         by_region: list[list[_Component]] = [[comps[j]] for j in range(n_reg)]
         for c, (r, _g) in enumerate(extras, start=n_reg):
             by_region[r].append(comps[c])
@@ -490,7 +562,9 @@ class ContactTracker:
     def _publish(self, grid: EvidenceGrid, t: float) -> list[Contact]:
         """Match the components to the live contacts and return the messages (as the full
         extraction does, component by component in its order)."""
-        comps = sorted(self._comps.values(), key=lambda c: c.key)
+        # a region with no detection behind it is never a contact, neither born nor kept
+        # alive (SPEC 7): a live contact whose region lost its detections is withdrawn
+        comps = [c for c in sorted(self._comps.values(), key=lambda c: c.key) if c.dets]
         n_comp = len(comps)
         pairs = []
         if self.live and n_comp:
@@ -530,7 +604,8 @@ class ContactTracker:
                 fields = comp.fields = dict(
                     east_m=comp.ce, north_m=comp.cn, sigma_m=comp.sigma, bel=comp.bel, pl=float(1.0 - comp.mn),
                     m_theta=comp.mth, looks=len(legs), detections=len(dets),
-                    detectors=tuple(d for d in grid.detectors if d in names), legs=legs)
+                    detectors=tuple(d for d in grid.detectors if d in names), legs=legs,
+                    **extent_fields(dets, self.frame))
             if state == "update":
                 old = self.live[cid]
                 if all(getattr(old, k) == v for k, v in fields.items()):

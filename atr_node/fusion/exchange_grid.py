@@ -117,7 +117,7 @@ class ExchangeGrid(EvidenceGrid):
         p = layer.chunks.gather(keys)
         # the same pure function on the same layer as the parent: the same terms bit for bit
         d_lt, d_ln, n_cl, _ = layer_terms(p, self.fusion.eps)
-        covered = (p >= 0.0).any(axis=(1, 2))
+        covered = (p[:, :, 1] >= 0.0).any(axis=1)  # a Pd: covered (a gate alone is not, SPEC 6.1)
         t = layer.t
         super()._commit(leg, layer, keys)
         self._leg_t[leg] = t

@@ -15,9 +15,12 @@ once: it goes to a transient *open layer* holding, per (detector, cell), the max
 Maximum is commutative, associative and exact, so the layer does not depend on how the leg
 was cut into tiles. When the leg closes (:meth:`EvidenceGrid.close_leg`, or automatically
 when a tile of another leg arrives), each (detector, cell) contributes once: T evidence where
-a detection's gate reached it, else notT evidence where the detector covered it (SPEC
-section 7), and the sums are *added* to the accumulators. Belief read while a leg is open
-includes its layer, so contacts appear as soon as the evidence does.
+a detection's gate reached it and the detector covered it, else notT evidence where the
+detector covered it (SPEC section 7), and the sums are *added* to the accumulators. One
+footprint (SPEC 6.1): a gate's T mass stops at the leg's coverage (the cells of its Pd
+layer), so a detection at the end of a leg puts no belief on ground that leg never saw.
+Belief read while a leg is open includes its layer, so contacts appear as soon as the
+evidence does.
 
 Merge (SPEC section 7): committed accumulators add; open layers of the same leg combine by
 maximum. See ``docs/fusion.md`` for what is bit-exact and what is exact to rounding.
@@ -34,7 +37,7 @@ from ..errors import FusionError
 from .chunks import ChunkStack, Key, LegLayer, layer_terms, layer_terms_covered
 from .deposit import PdReducer
 from .mass import TNMasses, closed_form
-from .observation import DetectionRecord, Observation, association_gate_m, gate_cells
+from .observation import DetectionRecord, Observation, association_gate_m, gate_cells, record_extent
 
 __all__ = ["DetectionRecord", "EvidenceGrid", "association_gate_m"]
 
@@ -240,7 +243,9 @@ class EvidenceGrid:
 
     def _deposit_detections(self, layer: LegLayer, obs: Observation, det_idx: list[int]) -> None:
         """T side of an observation: each detection's confidence over its gate, the maximum
-        per (detector, cell), and the georeferenced detection records (SPEC section 7).
+        per (detector, cell), and the georeferenced detection records (SPEC section 7). The
+        whole gate goes into the layer; it counts only on cells the leg covered, clipped when
+        the terms are formed (:func:`~atr_node.fusion.chunks.layer_terms`, SPEC 6.1).
 
         All gates go in one scatter (maximum: order-free); their chunks are looked up in
         the order of one lookup per detection (each detection's chunks in chunk order), so
@@ -252,7 +257,8 @@ class EvidenceGrid:
                 iy, ix = gate_cells(float(e), float(n), gate_m=self.gate_m, cell_m=self.cell_m)
                 gates.append((k, iy, ix, det.confidence))
                 self.detections.append(DetectionRecord(obs.leg, d.detector, float(e), float(n), float(obs.t),
-                                                       float(det.confidence), float(det.gamma)))
+                                                       float(det.confidence), float(det.gamma),
+                                                       **record_extent(obs.geometry, det)))
         if not gates:
             return
         n = self.n
@@ -283,7 +289,13 @@ class EvidenceGrid:
     def deposit(self, leg: int, detector: str, t: float, iy: np.ndarray, ix: np.ndarray, *,
                 m_t: np.ndarray | float | None = None, m_n: np.ndarray | float | None = None) -> None:
         """Low-level deposit of one (leg, detector)'s masses at cells (iy, ix) into the leg's
-        open layer: ``m_t`` on {T}, ``m_n`` on {notT} (maximum per cell, as for observations)."""
+        open layer: ``m_t`` on {T}, ``m_n`` on {notT} (maximum per cell, as for observations).
+
+        The cells are covered by this (leg, detector): T mass counts only where the same
+        (leg, detector) covered a cell (SPEC 6.1), so ``m_t`` without ``m_n`` also marks the
+        cells covered, with Pd 0 (no notT evidence). Contacts need detections behind them
+        (SPEC 7): this deposit adds none (``detections`` lists the grid's detection records).
+        """
         k = self._det(detector)
         iy = np.asarray(iy, dtype=np.int64).ravel()
         ix = np.asarray(ix, dtype=np.int64).ravel()
@@ -306,6 +318,10 @@ class EvidenceGrid:
         for which, v in enumerate(vals):
             if v is not None:
                 np.maximum.at(flat, base + (2 * k + which) * self.nn, v)
+        if vals[0] is not None and vals[1] is None:
+            # T here says this (leg, detector) looked here: covered, Pd 0 (a no-op where
+            # some Pd is already held: maximum)
+            np.maximum.at(flat, base + (2 * k + 1) * self.nn, 0.0)
 
     def close_leg(self, leg: int) -> None:
         """Commit an open leg: add its log terms to the accumulators (pure addition)."""
@@ -456,7 +472,7 @@ class EvidenceGrid:
                 if bits is None or (int(bits[byte]) >> bit) & 1]
         for leg, layer in self.open.items():
             s = layer.chunks.slot.get(key)
-            if s is not None and (layer.chunks.arr[s, :, :, cell] >= 0.0).any():
+            if s is not None and (layer.chunks.arr[s, :, 1, cell] >= 0.0).any():  # a Pd: covered
                 legs.append(leg)
         return sorted(set(legs))
 

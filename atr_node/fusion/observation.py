@@ -39,17 +39,31 @@ class DetectionEvidence:
     """Ground range of the anchor."""
     confidence: float
     """c_d(gamma; tau_d) in [0, 1]: the mass it puts on {T}."""
+    length_m: float | None = None
+    """An extended object's (``detectors/objects.py``) long-axis length; None otherwise."""
+    width_m: float | None = None
+    """Its extent across the long axis."""
+    axis_deg: float | None = None
+    """Its long axis in the tile: 0 along-track (increasing rows), +90 towards increasing range."""
 
     def __post_init__(self) -> None:
         if not (0.0 <= self.confidence <= 1.0):
             raise FusionError(f"detection at row {self.row}, col {self.col}: confidence {self.confidence!r} "
                               "is outside [0, 1]")
+        extent = (self.length_m, self.width_m, self.axis_deg)
+        if any(v is not None for v in extent) and not (
+                all(v is not None and math.isfinite(v) for v in extent) and 0.0 <= self.width_m <= self.length_m):
+            raise FusionError(f"detection at row {self.row}, col {self.col}: extent (length_m, width_m, axis_deg) "
+                              f"= {extent!r}: expected all three finite, 0 <= width_m <= length_m, or none")
 
     @classmethod
     def from_detection(cls, detection: Any, confidence: float) -> "DetectionEvidence":
-        """From an ``atr_node.detectors.Detection`` (row, col, gamma, range_m) and its confidence."""
+        """From an ``atr_node.detectors.Detection`` (row, col, gamma, range_m, and an extended
+        object's length_m, width_m, axis_deg when it has them) and its confidence."""
+        extent = {k: float(v) for k in ("length_m", "width_m", "axis_deg")
+                  if (v := getattr(detection, k, None)) is not None}
         return cls(row=int(detection.row), col=int(detection.col), gamma=float(detection.gamma),
-                   range_m=float(detection.range_m), confidence=float(confidence))
+                   range_m=float(detection.range_m), confidence=float(confidence), **extent)
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,6 +149,38 @@ class DetectionRecord:
     t: float
     confidence: float
     gamma: float
+    length_m: float | None = None
+    """An extended object (a wreck): length of its long axis, metres; None for other detections."""
+    width_m: float | None = None
+    """Its extent across the long axis, metres."""
+    heading_deg: float | None = None
+    """Grid heading (clockwise from the mission frame's grid north) of its long axis, in [0, 180)."""
+
+
+def record_extent(geometry: TileGeometry, det: DetectionEvidence) -> dict[str, float]:
+    """The extent fields of a :class:`DetectionRecord` for ``det`` (empty without an extent).
+
+    The long axis, ``axis_deg`` from the track towards increasing range in the tile, turns
+    into the mission frame with the ping's grid heading: ``v = cos(a) f + sin(a) u``, ``f``
+    the forward unit vector ``(sin h, cos h)`` (east, north) and ``u`` the across-track one
+    (towards increasing range on either side); its heading ``atan2(v_e, v_n)`` modulo 180.
+    """
+    if det.length_m is None:
+        return {}
+    h = float(geometry.heading_grid_rad[det.row])
+    ue, un = float(geometry.ue[det.row]), float(geometry.un[det.row])
+    norm = math.hypot(ue, un)
+    a = math.radians(det.axis_deg)
+    ve = math.cos(a) * math.sin(h) + math.sin(a) * ue / norm
+    vn = math.cos(a) * math.cos(h) + math.sin(a) * un / norm
+    return {"length_m": float(det.length_m), "width_m": float(det.width_m),
+            "heading_deg": axis_heading_deg(math.degrees(math.atan2(ve, vn)))}
+
+
+def axis_heading_deg(deg: float) -> float:
+    """An axis's direction (either way along it) as a heading in [0, 180)."""
+    h = deg % 180.0
+    return 0.0 if h >= 180.0 else h  # -1e-17 % 180 rounds to 180
 
 
 def gate_cells(east_m: float, north_m: float, *, gate_m: float, cell_m: float) -> tuple[np.ndarray, np.ndarray]:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import zipfile
 from pathlib import Path
@@ -40,6 +41,8 @@ from .grid import DetectionRecord, EvidenceGrid
 
 FORMAT = "atr-node evidence grid"
 VERSION = 1
+_EXTENT = ("length_m", "width_m", "heading_deg")
+"""Detection record fields of an extended object (optional arrays ``det_<field>``, NaN: none)."""
 
 
 def _keys(keys: list[tuple[int, int]]) -> np.ndarray:
@@ -80,6 +83,8 @@ def grid_arrays(grid: EvidenceGrid, tracker: ContactTracker | None = None) -> di
     a["det_detector"] = np.array([grid.detectors.index(r.detector) for r in dets], dtype=np.int64)
     for f in ("east_m", "north_m", "t", "confidence", "gamma"):
         a[f"det_{f}"] = np.array([getattr(r, f) for r in dets], dtype=np.float64)
+    for f in _EXTENT:  # an extended object's extent (NaN: none)
+        a[f"det_{f}"] = np.array([math.nan if getattr(r, f) is None else getattr(r, f) for r in dets], dtype=np.float64)
     a["changed_keys"] = _keys(list(grid.changed))
     a["changed_stamp"] = np.array(list(grid.changed.values()), dtype=np.int64)
     meta = {"format": FORMAT, "version": VERSION, "fusion": dataclasses.asdict(grid.fusion), "gate_m": grid.gate_m,
@@ -161,6 +166,9 @@ def load(path: str | os.PathLike[str]) -> tuple[EvidenceGrid, dict[str, Any] | N
                        for l, d, e, n, t, c, g in zip(a["det_leg"], a["det_detector"], a["det_east_m"],
                                                       a["det_north_m"], a["det_t"], a["det_confidence"],
                                                       a["det_gamma"])]
+    if "det_length_m" in a:  # snapshots written before extents were kept have none
+        grid.detections = [r if math.isnan(x[0]) else dataclasses.replace(r, **dict(zip(_EXTENT, map(float, x))))
+                           for r, x in zip(grid.detections, zip(*(a[f"det_{f}"] for f in _EXTENT)))]
     grid.changed = {tuple(k): int(s) for k, s in zip(a["changed_keys"].tolist(), a["changed_stamp"])}
     grid.closed_legs = set(meta["closed_legs"])
     grid.n_clamped, grid.n_observations, grid.stamp = meta["n_clamped"], meta["n_observations"], meta["stamp"]

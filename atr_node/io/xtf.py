@@ -9,10 +9,12 @@ replays exactly like an ``.atrlog``:
   the nadir outwards (the port channel, stored far range first, is reversed), ``range0_m`` the
   centre of sample 0 (``TimeDelay`` x one-way sound speed + dr/2), ``dr_m`` = slant range /
   samples, ``dx_m`` = mean speed (knots in XTF) x median ping interval, per-row ``nav`` from
-  the ping headers (``altitude="sonar"``: altitude from the pings' first seabed return,
-  :mod:`.xtf_bottom`), ``sensor`` from the channel headers where the file has it (the rest from
+  the ping headers (altitude: see ``altitude`` of :class:`XtfReader`), ``sensor`` from the
+  channel headers where the file has it (the rest from
   :class:`~atr_node.config.SensorSettings`). A block ends early when the channel geometry
-  changes, after a pause of more than ``max_gap_s``, or when pings start or stop carrying a
+  changes (sample count, type, or a range axis that differs by more than 1e-4 relative; pings
+  within it are resampled onto the block's first ping's axis), after a pause of more than
+  ``max_gap_s``, or when pings start or stop carrying a
   position: pings without one make tiles without ``nav`` (the node then interpolates its INS
   links).
 - ``nmea`` records synthesised with :mod:`hw.nmea`: from ping headers GGA (at the position fix
@@ -20,6 +22,9 @@ replays exactly like an ``.atrlog``:
   (speed, null course: XTF has none); from navigation packets GGA, from attitude and gyro
   packets HDT; ZDA once a second so decoders know the date. NMEA sentences a serial port
   logged into raw serial packets (type 6) come out as recorded.
+
+Positions in projected metres (``NavUnits`` 0) are converted to lat/lon with the CRS given as
+``crs`` (``--crs``); without it the reader refuses such a file at once (:mod:`.xtf_packets`).
 
 Records come in time order: ``t`` is the packet time (a tile's is its last ping), never less
 than the record before (a navigation packet stamped earlier than what precedes it in the file
@@ -29,6 +34,7 @@ dropped and counted. Everything met is counted in an :class:`XtfStats`.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from pathlib import Path
@@ -43,14 +49,23 @@ from ..config import SensorSettings
 from ..records.nav import _haversine_m, nav_jumps
 from ..records.tile import SensorInfo, Tile, TileNav
 from .atrlog import LogRecord
-from .xtf_bottom import bottom_altitude_m
-from .xtf_packets import NAV_UNITS_LATLON, XtfNav, XtfPing, XtfSerial, iter_xtf_items, note_fields
+from .xtf_bottom import BottomTrack, track_bottom
+from .xtf_packets import XtfNav, XtfPing, XtfSerial, iter_xtf_items, note_fields, read_positions
 from .xtf_stats import XtfStats
 
 __all__ = ["DEFAULT_TILE_PINGS", "XtfReader", "XtfStats", "iter_xtf_records"]
 
 DEFAULT_TILE_PINGS = 256
-ALTITUDE_SOURCES = ("altimeter", "sonar")
+ALTITUDE_SOURCES = ("auto", "altimeter", "sonar")
+AXIS_RTOL = 1e-4
+"""Pings whose sample spacing and first-sample range agree to this (relative) share a tile."""
+AXIS_RESAMPLE_SAMPLES = 1e-4
+"""A ping whose samples sit farther than this (in samples, anywhere on the swath) from the
+tile's axis is resampled onto it; closer, its samples are used as they are."""
+ALTITUDE_RTOL = 0.05
+"""``auto``: a recorded altitude within this fraction (or 2 samples) of the image's first
+return is consistent with it."""
+log = logging.getLogger(__name__)
 WIRE_DTYPE = {np.dtype("<u2"): "uint16", np.dtype("u1"): "uint8"}
 
 
@@ -60,10 +75,41 @@ def _nav_valid(nav: XtfNav) -> bool:
 
 
 def _block_key(ping: XtfPing) -> tuple:
-    """Pings of one tile share this: per side samples, dtype, range0 and dr; nav or not."""
-    sides = tuple((s, c.samples.size, c.samples.dtype.str, c.range0_m, c.dr_m, c.slant)
-                  for s, c in sorted(ping.channels.items()))
+    """Pings of one tile share this: per side samples, dtype and slant; nav or not.
+
+    The range axis (``range0_m``, ``dr_m``) is compared with a tolerance by :func:`_same_axis`:
+    exporters recompute the sample spacing per ping in float32 (SonarWiz drifts by 8e-5
+    relative from ping to ping), which is not a change of range scale.
+    """
+    sides = tuple((s, c.samples.size, c.samples.dtype.str, c.slant) for s, c in sorted(ping.channels.items()))
     return sides, _nav_valid(ping.nav)
+
+
+def _same_axis(ping: XtfPing, first: XtfPing) -> bool:
+    """True when every side of ``ping`` has the range axis of ``first`` to ``AXIS_RTOL``."""
+    for side, c in ping.channels.items():
+        c0 = first.channels[side]
+        if not (abs(c.dr_m - c0.dr_m) <= AXIS_RTOL * abs(c0.dr_m)
+                and abs(c.range0_m - c0.range0_m) <= AXIS_RTOL * max(abs(c0.range0_m), abs(c0.dr_m))):
+            return False
+    return True
+
+
+def _on_axis(samples: np.ndarray, range0_m: float, dr_m: float, range0_to_m: float,
+             dr_to_m: float) -> np.ndarray | None:
+    """``samples`` (float) linearly resampled onto the axis ``range0_to_m + dr_to_m * i``, or
+    None when no sample moves by more than ``AXIS_RESAMPLE_SAMPLES`` (used as they are).
+    NaN (no data) spreads to the neighbouring output samples only."""
+    n = samples.size
+    shift = (abs(range0_m - range0_to_m) + abs(dr_m - dr_to_m) * (n - 1)) / dr_to_m
+    if shift <= AXIS_RESAMPLE_SAMPLES:
+        return None
+    f = (range0_to_m + dr_to_m * np.arange(n) - range0_m) / dr_m
+    f = np.clip(f, 0.0, n - 1)
+    i0 = np.floor(f).astype(np.int64)
+    i1 = np.minimum(i0 + 1, n - 1)
+    w = f - i0
+    return np.where(w == 0, samples[i0], samples[i0] * (1 - w) + samples[i1] * w)
 
 
 class XtfReader:
@@ -86,16 +132,32 @@ class XtfReader:
         when neither speed nor positions give it.
     altitude
         ``altimeter``: the tile ``nav.altitude_m`` is the ping header's altitude, as recorded;
-        ``sonar``: the sonar's own altitude from the first seabed return of the pings
-        (:mod:`.xtf_bottom`), the recorded one where no return is found. DPT sentences always
-        carry the recorded altitude.
+        ``sonar``: the sonar's own altitude from the first bottom return of the pings
+        (:func:`.xtf_bottom.track_bottom`, continuous across tiles), the recorded one where
+        the image shows none; ``auto`` (default): the recorded altitude where it is plausible
+        (> 0 and within 5 % or 2 samples of the image's first-return track where it has one),
+        the image's first return where it is zero, missing or inconsistent. Pings per source
+        are counted in ``stats.altitude_source`` and logged once per file. DPT sentences
+        always carry the recorded altitude.
     max_gap_s
         A longer pause between two pings starts a new tile (a tile is a contiguous run).
+    crs
+        Coordinate reference system of the file's positions when they are not degrees (XTF
+        ``NavUnits`` 0: projected metres), e.g. ``EPSG:32610``; "" = none (:mod:`.crs`).
+
+    Raises
+    ------
+    LogFormatError
+        At construction (the file header is read at once): not an XTF file, or positions that
+        need a CRS and none given (one line naming ``--crs``).
+    ConfigError
+        ``crs`` is not a CRS pyproj knows.
     """
 
     def __init__(self, path: str | os.PathLike[str], *, tile_pings: int = DEFAULT_TILE_PINGS,
                  mission: str | None = None, leg: int | None = None, seq0: int | None = None,
-                 sensor: SensorSettings | None = None, altitude: str = "altimeter", max_gap_s: float = 2.0) -> None:
+                 sensor: SensorSettings | None = None, altitude: str = "auto", max_gap_s: float = 2.0,
+                 crs: str = "") -> None:
         if not max_gap_s > 0:
             raise ValueError(f"max_gap_s must be > 0, got {max_gap_s}")
         self.max_gap_s = float(max_gap_s)
@@ -110,6 +172,13 @@ class XtfReader:
         self.mission, self.leg, self.seq0 = mission or self.path.stem or "xtf", int(leg or 0), int(seq0 or 0)
         self.sensor = sensor or SensorSettings()
         self.stats = XtfStats(path=str(self.path))
+        # what the positions are is decided from the file header now, so that a file that
+        # needs --crs fails before a command writes anything
+        self.positions = self._read_positions(crs)
+
+    def _read_positions(self, crs: str):
+        """What the file's positions are (its header); a hook other formats (JSF) override."""
+        return read_positions(self.path, crs)
 
     def _use_header(self, header) -> None:
         """Mission, leg and seq written by :mod:`.xtf_write` are the defaults of the arguments."""
@@ -122,9 +191,6 @@ class XtfReader:
         except ValueError:
             pass
         self._seq = {"port": self.seq0, "stbd": self.seq0}
-        if header.NavUnits != NAV_UNITS_LATLON:
-            self.stats.errors.append(f"{self.path}: NavUnits {header.NavUnits} (projected metres, projection unknown): "
-                                     "positions are not used; tiles carry no nav")
 
     def __iter__(self) -> Iterator[LogRecord]:
         self._last_t = -math.inf
@@ -135,9 +201,10 @@ class XtfReader:
         self._last_gga_t = -math.inf
         self._zda_second = -math.inf
         self._last_dx: float | None = None
+        self._alt_prior: BottomTrack | None = None
         block: list[XtfPing] = []
         key = None
-        for item in iter_xtf_items(self.path, self.stats, self._header):
+        for item in self._items():
             if self._header:  # filled by the generator before its first item
                 self._use_header(self._header.pop())
             if isinstance(item, XtfSerial):
@@ -159,7 +226,7 @@ class XtfReader:
             self._last_ping_t = ping.nav.t
             k = _block_key(ping)
             gap = bool(block) and ping.nav.t - block[-1].nav.t > self.max_gap_s
-            if block and (k != key or len(block) >= self.tile_pings or gap):
+            if block and (k != key or len(block) >= self.tile_pings or gap or not _same_axis(ping, block[0])):
                 yield from self._tiles(block)
                 block = []
             key = k
@@ -170,6 +237,12 @@ class XtfReader:
             yield from self._nav_records(ping.nav, ping.nav.t, ping.nav.fix_t, ping.offset)
         if block:
             yield from self._tiles(block)
+        if self.stats.pings:
+            log.info("%s: %s", self.path, self.stats.altitude_line())
+
+    def _items(self) -> Iterator[XtfPing | XtfNav | XtfSerial]:
+        """The pings, fixes and serial text of the file; the hook other formats (JSF) override."""
+        return iter_xtf_items(self.path, self.stats, self._header, positions=self.positions)
 
     # -- records -----------------------------------------------------------------------------
     def _record(self, t: float, link: str, msg, offset: int) -> LogRecord:
@@ -180,7 +253,7 @@ class XtfReader:
         try:
             line = make()
         except NmeaError as exc:
-            self.stats.errors.append(f"{self.path}: at byte {offset}: {kind} not written: {exc}")
+            self.stats.quirk(f"{kind} not written", f"{self.path}: at byte {offset}: {kind} not written: {exc}")
             return
         self.stats.nmea[kind] += 1
         yield self._record(t, "nmea", line, offset)
@@ -241,6 +314,44 @@ class XtfReader:
                           bandwidth_hz=ch.bandwidth_hz * 1e3 if ch.bandwidth_hz > 0 else s.bandwidth_hz,
                           tx_length_m=s.tx_length_m, rx_length_m=s.rx_length_m, n_rx=1, sas=False)
 
+    def _altitude_m(self, tiles: dict[str, Tile], recorded: np.ndarray) -> np.ndarray:
+        """The altitude of a block's pings (``altitude`` in the class docstring), counted by
+        source in ``stats``."""
+        st = self.stats
+        rec = np.asarray(recorded, dtype=np.float64)
+        zero = rec == 0
+        missing = ~np.isfinite(rec) | (rec < 0)
+        st.altitude_recorded_bad["zero"] += int(zero.sum())
+        st.altitude_recorded_bad["missing"] += int(missing.sum())
+        first = next(iter(tiles.values()))
+        if self.altitude == "altimeter" or not first.slant:
+            st.altitude_source["recorded"] += rec.size
+            return rec
+        # the previous block's track: the Viterbi starts from its end, the along-track envelope
+        # (which fills early returns of objects near the nadir) continues over it
+        track = track_bottom(tiles.get("port"), tiles.get("stbd"), prior=self._alt_prior)
+        img = track.altitude_m
+        have = np.isfinite(img)
+        if have.any():
+            self._alt_prior = track
+        st.altitude_image_carried += int((have & ~track.found).sum())
+        if self.altitude == "sonar":
+            use = have
+        else:
+            # recorded where plausible: > 0 and, where the image has a first-return track,
+            # within ALTITUDE_RTOL (or 2 samples) of it; the image's elsewhere. Pings the track
+            # carried over (no clear return of their own) are judged against it too: a
+            # recorded value that jumps away from its neighbours' track for a ping or two
+            # would put the water column back into the image there.
+            tol = np.maximum(ALTITUDE_RTOL * np.where(have, img, 0.0), 2.0 * first.dr_m)
+            inconsistent = have & ~(zero | missing) & ~(np.abs(rec - img) <= tol)
+            st.altitude_recorded_bad["inconsistent with the image"] += int(inconsistent.sum())
+            use = have & (zero | missing | inconsistent)
+        st.altitude_source["image"] += int(use.sum())
+        st.altitude_source["recorded"] += int((~use).sum())
+        st.altitude_from_sonar += int(use.sum())
+        return np.where(use, img, rec)
+
     def _tiles(self, block: list[XtfPing]) -> Iterator[LogRecord]:
         first, last = block[0], block[-1]
         ping_time = np.array([p.nav.t for p in block], dtype=np.float64)
@@ -262,15 +373,19 @@ class XtfReader:
                 pixels[~np.isfinite(pixels) | (pixels < 0)] = np.nan  # no data, never negative (ICD 1)
             else:
                 pixels[raw == 0] = np.nan
+            for i, p in enumerate(block[1:], 1):
+                # within AXIS_RTOL of the first ping's axis (_same_axis): put on that axis
+                c = p.channels[side]
+                moved = _on_axis(pixels[i], c.range0_m, c.dr_m, ch.range0_m, ch.dr_m)
+                if moved is not None:
+                    pixels[i] = moved
+                    self.stats.pings_resampled += 1
             tiles[side] = Tile(mission=self.mission, leg=self.leg, side=side, seq=self._seq[side], pixels=pixels,
                                kind="amplitude", range0_m=ch.range0_m, dr_m=ch.dr_m, dx_m=dx, slant=ch.slant,
                                ping_time=ping_time, nav=nav, sensor=self._sensor_info(first, side),
                                wire_dtype=wire)
-        if nav is not None and self.altitude == "sonar" and first.channels[next(iter(tiles))].slant:
-            alt = bottom_altitude_m(tiles.get("port"), tiles.get("stbd"))
-            tracked = np.isfinite(alt)
-            self.stats.altitude_from_sonar += int(tracked.sum())
-            nav = TileNav(nav.lat_deg, nav.lon_deg, nav.heading_deg, np.where(tracked, alt, nav.altitude_m))
+        if nav is not None:
+            nav = TileNav(nav.lat_deg, nav.lon_deg, nav.heading_deg, self._altitude_m(tiles, nav.altitude_m))
         for side, tile in tiles.items():
             self._seq[side] += 1
             self.stats.tiles += 1
@@ -279,15 +394,15 @@ class XtfReader:
 
 def iter_xtf_records(path: str | os.PathLike[str], *, tile_pings: int = DEFAULT_TILE_PINGS,
                      mission: str | None = None, leg: int | None = None, seq0: int | None = None,
-                     sensor: SensorSettings | None = None, altitude: str = "altimeter",
-                     stats: XtfStats | None = None) -> Iterator[LogRecord]:
+                     sensor: SensorSettings | None = None, altitude: str = "auto",
+                     stats: XtfStats | None = None, crs: str = "") -> Iterator[LogRecord]:
     """Stream an XTF file as ``.atrlog`` records (see :class:`XtfReader`).
 
     ``stats``, when given, is filled as the records stream (packets by type, skipped unknown
     types, pings, tiles, NMEA sentences); read it once the iterator is exhausted.
     """
     reader = XtfReader(path, tile_pings=tile_pings, mission=mission, leg=leg, seq0=seq0, sensor=sensor,
-                       altitude=altitude)
+                       altitude=altitude, crs=crs)
     if stats is not None:
         stats.path = reader.stats.path
         reader.stats = stats

@@ -1,79 +1,267 @@
-"""Sonar altitude from the first seabed return of slant-range pings (bottom tracking).
+"""Sonar altitude from the first bottom return of slant-range pings (bottom tracking).
 
 Side-scan recordings carry the altitude of a separate altimeter (a DVL beam, an echo sounder),
-mounted elsewhere on the vehicle and sometimes pointing through a pitched hull. Slant-to-ground
-conversion (SPEC section 0, ``r = sqrt(R^2 - H^2)``) needs the altitude of the side-scan
-transducers themselves: when the two differ by dH, the water column between them lands on the
-ground axis as a dark band of width about ``sqrt(2 H dH)`` next to the nadir, which looks like
-a shadow to the detectors. The first seabed return in the pings measures that altitude
-directly, as every side-scan processing package does.
+mounted elsewhere on the vehicle and sometimes pointing through a pitched hull, or no altitude
+at all (0 in every ping of some exports). Slant-to-ground conversion (SPEC section 0,
+``r = sqrt(R^2 - H^2)``) needs the altitude of the side-scan transducers themselves: when the
+altitude used is short by dH, the water column lands on the ground axis as a dark band of
+width about ``sqrt(2 H dH)`` next to the nadir, which looks like a shadow to the detectors.
+The first bottom return in the pings measures that altitude directly.
 
-Per ping and side: amplitude smoothed over ``smooth_m`` of range; threshold = ``fraction`` x
-the median of the ping's outer half (the seabed level); the first return is the first sample
-at or above the threshold after at least one sample below it (so the transmit ring-down at
-the start of the ping is passed over). The altitude of a ping is the larger of the two sides'
-first-return ranges (a proud object near the nadir on one side returns early; the seabed on
-the other does not), then a running median over ``median_pings`` pings removes outliers.
+What the real pings show (``docs/xtf.md``): a bright ring-down of the transmitter over the
+first 0.2-0.4 m, then the dark water column (with, in some files, stationary bright lines a few
+samples wide at fixed ranges, fish, or surface arcs), then the first bottom return: a step up
+by a factor 10-100 to the seabed level, which then stays bright. So, per ping and side:
+
+1. ``L`` = log amplitude, median-filtered along range over ``window_m`` (at least 7 samples):
+   thin lines (cross-talk, fish, speckle spikes) vanish, the step to the seabed stays sharp.
+2. The ringing zone ends where the median over the pings of ``L`` first falls back to the water
+   column after its peak near sample 0 (measured on the pings themselves, so no sensor
+   constant is needed); no return is looked for before it.
+3. Step score at range R: mean of ``L`` over ``window_m`` after R minus the mean before it (a
+   rise by a factor e^score), less ``bright_penalty`` per metre of seabed-bright samples
+   already seen before R: the first return has only water before it; the far edge of a shadow,
+   an equally strong rise, has seabed before it.
+
+Both sides' scores are added (the first return is at the same slant range on both sides of a
+level vehicle over a flat seabed), and a dynamic programme over the pings (Viterbi with an L1
+penalty of ``jump_penalty`` per metre of altitude change from ping to ping) picks the
+continuous track of highest total score: a fish or a patch of noise does not pull the track
+away for one ping.
+
+A proud object or a ridge near the nadir (the river file's sand-wave crests: port and
+starboard pings 150-160, 232-248, 283-297, 355-378) returns before the seabed over 5-20 pings
+(up to 3.4 s), on one side or both, with a shadow behind it; it is as strong a rise as the
+seabed, so the Viterbi follows its top and the altitude dips by up to 1 m. The seabed is the
+continuous, later return: a grey closing along track over ``envelope_s`` (4 s; a dilation,
+then an erosion, of the Viterbi track) fills every dip shorter than that and leaves any
+monotonic change of altitude (a descent, a climb, a bank) and any dip or rise longer than it
+untouched. Such an object lies above the seabed (R < H): the flat-seabed geometry cannot place
+it, and it lands in the water column, which the node drops. Across blocks the closing continues
+over the previous block's raw track (``prior``); a dip still under way at a block's last ping
+is kept (the future is not read). A ping's track is ``found`` when the score at the final range
+shows a rise by at least ``min_rise`` on at least one side.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage as ndi
 
 from ..records.tile import Tile
 
+__all__ = ["BottomTrack", "bottom_altitude_m", "first_return_m", "ringing_end_m", "track_bottom"]
 
-def first_return_m(tile: Tile, *, fraction: float = 0.3, smooth_m: float = 0.15) -> np.ndarray:
-    """Slant range of the first seabed return of each ping of a slant-range tile.
 
-    Parameters
-    ----------
-    tile
-        Slant-range tile, columns from the nadir outwards.
-    fraction
-        Threshold as a fraction of the seabed level (median of the outer half of the ping).
-    smooth_m
-        Length of the range smoothing window.
+@dataclass(frozen=True)
+class BottomTrack:
+    """Result of :func:`track_bottom`, one value per ping."""
 
-    Returns
-    -------
-    np.ndarray
-        (rows,) float64 slant range in metres; NaN where no return was found.
+    altitude_m: np.ndarray
+    """(rows,) float64 slant range of the first bottom return; NaN when no ping of the block
+    shows one (the track is continuous: pings in between are carried from their neighbours)."""
+    found: np.ndarray
+    """(rows,) bool: the tracked range is a clear rise (>= ``min_rise``) on at least one side."""
+    ringing_end_m: float
+    """Slant range where the transmit ringing ends (the shortest altitude looked for)."""
+    raw_m: np.ndarray | None = None
+    """(rows,) the Viterbi track before the along-track envelope (what the next block continues)."""
+
+
+def _window(tile: Tile, window_m: float) -> int:
+    # at least 7 samples, so that lines up to 3 samples wide vanish in the median
+    k = max(int(round(window_m / tile.dr_m)), 7)
+    return k | 1
+
+
+def _log_profile(tile: Tile, k: int) -> np.ndarray:
+    px = np.nan_to_num(tile.pixels.astype(np.float64), nan=0.0)
+    # log(1 + a): rises are ratios; the +1 keeps no-data (0) and 8-bit water (5) finite
+    return ndi.median_filter(np.log1p(np.maximum(px, 0.0)), size=(1, k), mode="nearest")
+
+
+def ringing_end_m(tile: Tile, *, window_m: float = 0.3) -> float:
+    """Slant range where the transmit ringing of a slant tile ends, measured on its pings.
+
+    The median over the pings of the log amplitude peaks within the first samples (the
+    ring-down) and falls to the water column; the ringing ends at the first sample after the
+    peak within a factor 2 of the darkest column (the water column, or the seabed's darkest
+    part if the vehicle flies lower than the ringing lasts, which a first return cannot be).
     """
     if not tile.slant:
         raise ValueError(f"{tile.ident}: bottom tracking needs slant-range pings")
-    k = max(int(round(smooth_m / tile.dr_m)), 1)
     px = np.nan_to_num(tile.pixels.astype(np.float64), nan=0.0)
-    smooth = ndi.uniform_filter1d(px, size=k, axis=1, mode="nearest")
-    level = np.median(px[:, tile.cols // 2:], axis=1)
-    above = smooth >= fraction * level[:, None]
-    seen_below = np.maximum.accumulate(~above, axis=1)
-    hit = above & seen_below
-    idx = np.argmax(hit, axis=1)
-    found = hit[np.arange(tile.rows), idx] & (level > 0)
-    return np.where(found, tile.range0_m + tile.dr_m * idx, np.nan)
+    col = np.median(np.log1p(np.maximum(px, 0.0)), axis=0)
+    head = max(tile.cols // 8, 2)
+    peak = int(np.argmax(col[:head]))
+    water = float(np.min(col[peak:]))
+    dark = np.flatnonzero(col[peak:] <= water + np.log(2.0))
+    end = peak + int(dark[0]) if dark.size else peak
+    return float(tile.range0_m + tile.dr_m * end)
 
 
-def bottom_altitude_m(port: Tile | None, stbd: Tile | None, *, fraction: float = 0.3, smooth_m: float = 0.15,
-                      median_pings: int = 7) -> np.ndarray:
-    """Sonar altitude per ping from both sides' first returns (module docstring).
+def _side_scores(tile: Tile, k: int, ring_end_m: float, bright_penalty: float) -> tuple[np.ndarray, np.ndarray]:
+    """(raw rise, penalised score), both (rows, cols): at column i, the step from [i-k, i) to [i, i+k)."""
+    L = _log_profile(tile, k)
+    rows, cols = L.shape
+    c = np.concatenate([np.zeros((rows, 1)), np.cumsum(L, axis=1)], axis=1)
+    rise = np.full((rows, cols), -np.inf)
+    i = np.arange(k, cols - k + 1)
+    rise[:, i] = (c[:, i + k] - c[:, i]) / k - (c[:, i] - c[:, i - k]) / k
+    # seabed-bright: above the midpoint (in log) between the ping's water and seabed levels
+    start = min(max(int(np.ceil((ring_end_m - tile.range0_m) / tile.dr_m)), 0), cols - 1)
+    tail = L[:, start:]
+    lo = np.percentile(tail, 10, axis=1)
+    hi = np.percentile(tail, 75, axis=1)
+    bright = (L > 0.5 * (lo + hi)[:, None]) & ((hi - lo) > np.log(4.0))[:, None]
+    bright[:, :start] = False
+    # bright samples strictly before the window that precedes i (the edge itself is allowed)
+    seen = np.concatenate([np.zeros((rows, 1)), np.cumsum(bright, axis=1)], axis=1)
+    before = np.zeros((rows, cols))
+    j = np.arange(cols)
+    before[:, j] = seen[:, np.clip(j - k, 0, cols)]
+    score = np.clip(rise, 0.0, None) - bright_penalty * tile.dr_m * before
+    return rise, score
+
+
+def track_bottom(port: Tile | None, stbd: Tile | None, *, prior_m: float | None = None,
+                 prior: BottomTrack | None = None, window_m: float = 0.3, jump_penalty: float = 2.0,
+                 bright_penalty: float = 2.0, min_rise: float = np.log(3.0), min_altitude_m: float = 0.0,
+                 envelope_s: float = 4.0) -> BottomTrack:
+    """First bottom return per ping from one or both sides of a block of slant pings.
+
+    Parameters
+    ----------
+    port, stbd
+        Slant-range tiles of the same pings (columns from the nadir outwards); either may be
+        None. Both must share ``range0_m``, ``dr_m`` and ``cols`` when given.
+    prior_m
+        The altitude just before this block (the end of the previous block's track): the
+        track starts near it at the same ``jump_penalty``, so blocks join continuously.
+    prior
+        The previous block's result: its last raw altitude is ``prior_m`` (unless given) and
+        its raw track is the history of the along-track envelope, so a dip that began in the
+        previous block is filled here too.
+    window_m
+        Length over which the rise is measured (and of the median filter), at least 7 samples.
+    jump_penalty
+        Cost per metre of altitude change between consecutive pings, in units of the log rise
+        (a rise by e on both sides scores 2): 2 means a one-ping excursion of 1 m and back
+        needs a rise by e^4 more than the continuous track offers.
+    bright_penalty
+        Cost per metre of seabed-bright samples before a candidate.
+    min_rise
+        Natural log of the rise that makes a ping's track ``found`` (default a factor 3).
+    min_altitude_m
+        No return is looked for before this range, nor before the ringing's end.
+    envelope_s
+        Length (seconds of pings, from the tiles' ``ping_time``) of the along-track grey
+        closing: early returns shorter than this are filled to the seabed's later return
+        (module docstring); 0 turns it off.
+
+    Returns
+    -------
+    BottomTrack
+    """
+    tiles = [t for t in (port, stbd) if t is not None]
+    if not tiles:
+        raise ValueError("bottom tracking needs at least one side")
+    t0 = tiles[0]
+    for t in tiles:
+        if not t.slant:
+            raise ValueError(f"{t.ident}: bottom tracking needs slant-range pings")
+        if (t.cols, t.rows) != (t0.cols, t0.rows) or not np.isclose(t.dr_m, t0.dr_m, rtol=1e-4) \
+                or not np.isclose(t.range0_m, t0.range0_m, rtol=1e-4, atol=1e-4 * t0.dr_m):
+            raise ValueError(f"{t.ident}: both sides must share the range axis and the pings")
+    rows, cols = t0.rows, t0.cols
+    k = _window(t0, window_m)
+    ring_m = max(ringing_end_m(t, window_m=window_m) for t in tiles)
+    lo_m = max(ring_m, float(min_altitude_m))
+    rises, total = [], np.zeros((rows, cols))
+    for t in tiles:
+        rise, score = _side_scores(t, k, lo_m, bright_penalty)
+        rises.append(rise)
+        total += score
+    ranges = t0.range0_m + t0.dr_m * np.arange(cols)
+    states = np.flatnonzero((ranges >= lo_m) & np.isfinite(total).all(axis=0))
+    nan = np.full(rows, np.nan)
+    if states.size == 0:
+        return BottomTrack(nan, np.zeros(rows, bool), ring_m, nan)
+    cost = -total[:, states]  # (rows, n)
+    strong = np.max(np.stack([r[:, states] for r in rises]), axis=0) >= min_rise
+    if not strong.any():
+        return BottomTrack(nan, np.zeros(rows, bool), ring_m, nan)
+    # Viterbi with an L1 transition cost: min_j D[j] + lam |i - j| in O(n) by two running minima
+    lam = jump_penalty * t0.dr_m
+    idx = np.arange(states.size, dtype=np.float64)
+    acc = np.empty_like(cost)
+    d = cost[0].copy()
+    if prior_m is None and prior is not None and prior.raw_m is not None and np.isfinite(prior.raw_m).any():
+        prior_m = float(prior.raw_m[np.isfinite(prior.raw_m)][-1])
+    if prior_m is not None and np.isfinite(prior_m):
+        d += jump_penalty * np.abs(ranges[states] - prior_m)
+    acc[0] = d
+    for r in range(1, rows):
+        fwd = np.minimum.accumulate(d - lam * idx) + lam * idx
+        bwd = np.minimum.accumulate((d + lam * idx)[::-1])[::-1] - lam * idx
+        d = np.minimum(fwd, bwd) + cost[r]
+        acc[r] = d
+    path = np.empty(rows, dtype=np.int64)
+    path[-1] = int(np.argmin(acc[-1]))
+    for r in range(rows - 2, -1, -1):
+        path[r] = int(np.argmin(acc[r] + lam * np.abs(idx - path[r + 1])))
+    raw = ranges[states[path]].astype(np.float64)
+    history = prior.raw_m if prior is not None and prior.raw_m is not None else None
+    w = _envelope_pings(t0.ping_time, envelope_s)
+    if w > 1:
+        # the closing returns values of the track itself, so every ping stays on a state
+        path = np.clip(np.searchsorted(ranges[states], _close_dips(raw, w, history) - 0.5 * t0.dr_m), 0,
+                       states.size - 1)
+    found = strong[np.arange(rows), path]
+    return BottomTrack(ranges[states[path]].astype(np.float64), found, ring_m, raw)
+
+
+def _envelope_pings(ping_time: np.ndarray, envelope_s: float) -> int:
+    """``envelope_s`` in pings (odd), from the median ping interval; 1 = no envelope."""
+    if not envelope_s > 0 or ping_time.size < 2:
+        return 1
+    dt = float(np.median(np.diff(np.asarray(ping_time, dtype=np.float64))))
+    if not (np.isfinite(dt) and dt > 0):
+        return 1
+    return int(round(envelope_s / dt)) | 1
+
+
+def _close_dips(track_m: np.ndarray, w: int, history_m: np.ndarray | None) -> np.ndarray:
+    """Grey closing of ``track_m`` over ``w`` pings: dips shorter than ``w`` are filled.
+
+    The pings before the block (``history_m``, up to ``w`` of them) extend it at the start;
+    without them, and at the end, the first/last value is repeated (``mode="nearest"``), which
+    leaves a monotonic track unchanged (no lag, no bias on a real change of altitude) and keeps
+    a dip still under way at the end.
+    """
+    head = np.zeros(0)
+    if history_m is not None:
+        head = np.asarray(history_m, dtype=np.float64)[-w:]
+        head = head[np.isfinite(head)]
+    x = np.concatenate([head, track_m])
+    return ndi.grey_closing(x, size=w, mode="nearest")[head.size:]
+
+
+def first_return_m(tile: Tile, **kwargs) -> np.ndarray:
+    """Slant range of the first bottom return of each ping of one slant-range tile.
 
     Returns
     -------
     np.ndarray
-        (rows,) float64 metres; NaN where neither side found the seabed.
+        (rows,) float64 metres; NaN where the ping shows no clear rise (see :func:`track_bottom`).
     """
-    sides = [first_return_m(t, fraction=fraction, smooth_m=smooth_m) for t in (port, stbd) if t is not None]
-    if not sides:
-        raise ValueError("bottom tracking needs at least one side")
-    stacked = np.vstack(sides)
-    alt = np.full(stacked.shape[1], np.nan)
-    ok = ~np.all(np.isnan(stacked), axis=0)
-    alt[ok] = np.nanmax(stacked[:, ok], axis=0)
-    if median_pings > 1 and alt.size > 1:
-        # NaN-aware running median: gaps are filled from their neighbours, never invented past them
-        filled = np.where(np.isnan(alt), np.interp(np.arange(alt.size), np.flatnonzero(ok), alt[ok]) if ok.any()
-                          else np.nan, alt)
-        alt = np.where(ok, ndi.median_filter(filled, size=median_pings, mode="nearest"), np.nan)
-    return alt
+    track = track_bottom(None, tile, **kwargs)
+    return np.where(track.found, track.altitude_m, np.nan)
+
+
+def bottom_altitude_m(port: Tile | None, stbd: Tile | None, **kwargs) -> np.ndarray:
+    """Sonar altitude per ping from both sides (:func:`track_bottom`); NaN where not found."""
+    track = track_bottom(port, stbd, **kwargs)
+    return np.where(track.found, track.altitude_m, np.nan)

@@ -26,9 +26,18 @@ HeaderType                 values
 ========================== ===============================================================
 
 Everything else is skipped and counted under its pyxtf type name (``unknown_<n>`` for types
-pyxtf does not name). A packet that cannot be parsed is skipped and counted as ``bad``; a
-packet whose framing is broken (wrong magic number, length past the end of the file) ends the
-read with a warning that names the byte offset, keeping everything before it.
+pyxtf does not name). A packet that cannot be parsed is skipped and counted as ``bad`` and,
+by kind, in ``quirks`` (``zero date (attitude)``: older recorders leave the date of attitude
+packets 0; ``bad date``, ``short packet``, ``unparsable``), with the first of each kind kept
+as an example: a file with thousands of them gives one line, not thousands. A packet whose
+framing is broken (wrong magic number, length past the end of the file) ends the read with a
+warning that names the byte offset, keeping everything before it.
+
+Positions (:class:`XtfPositions`): ``NavUnits`` 3 in the file header says degrees (Y
+latitude, X longitude); 0 says projected metres (Y northing, X easting) in a projection the
+file does not name, so the reader needs it (``--crs``, :mod:`.crs`) and refuses the file at
+its header without it. No other value is defined by the XTF specification (rev. 35-40); such a
+file needs ``--crs`` too (``EPSG:4326`` if its positions are degrees). (0, 0) is "no fix".
 """
 
 from __future__ import annotations
@@ -48,6 +57,7 @@ from pyxtf.xtf_ctypes import (XTFAttitudeData, XTFFileHeader, XTFHeaderGyro, XTF
                               XTFPacketStart, XTFPingHeader, XTFPosRawNavigation, XTFRawSerialHeader)
 
 from ..errors import LogFormatError
+from .crs import EXAMPLE_CRS, Projection, projection
 from .xtf_stats import XtfStats
 
 log = logging.getLogger(__name__)
@@ -56,7 +66,7 @@ MAGIC = 0xFACE
 FILE_HEADER_BYTES = ctypes.sizeof(XTFFileHeader)
 PACKET_START_BYTES = ctypes.sizeof(XTFPacketStart)
 KNOT_M_S = 1852.0 / 3600.0
-NAV_UNITS_LATLON = 3
+NAV_UNITS_METRES, NAV_UNITS_LATLON = 0, 3  # XTFFileHeader.NavUnits: the only two the specification defines
 CHANNEL_SIDES = {1: "port", 2: "stbd"}  # XTFChanInfo.TypeOfChannel
 SONAR, RAW_SERIAL, NAVIGATION, POS_RAW_NAVIGATION = 0, 6, 42, 107
 ATTITUDE, GYRO, SOURCETIME_GYRO = 3, 23, 84
@@ -160,9 +170,25 @@ def read_file_header(fh: BinaryIO, path: str) -> XTFFileHeader:
     return header
 
 
+class PacketQuirk(ValueError):
+    """A packet that cannot be used for a reason older or odd writers share (a zero date):
+    counted by ``kind`` in :attr:`XtfStats.quirks` rather than reported packet by packet."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        self.kind = kind
+        super().__init__(message)
+
+
 def _utc(year: int, month: int, day: int, hour: int, minute: int, second: int) -> float:
-    """UNIX seconds of a UTC calendar time; ValueError when the fields are not a time."""
-    return datetime(year, month, day, hour, minute, second, tzinfo=timezone.utc).timestamp()
+    """UNIX seconds of a UTC calendar time; :class:`PacketQuirk` when the fields are not a time."""
+    if year == 0 and month == 0 and day == 0:
+        # older recorders leave the date of attitude packets unset (time of day only)
+        raise PacketQuirk("zero date", "date fields all 0 (time of day only)")
+    try:
+        return datetime(year, month, day, hour, minute, second, tzinfo=timezone.utc).timestamp()
+    except ValueError as exc:
+        raise PacketQuirk("bad date", f"date {year:04d}-{month:02d}-{day:02d} {hour:02d}:{minute:02d}:"
+                                      f"{second:02d} is not a time ({exc})") from None
 
 
 def _finite_or_nan(x: float) -> float:
@@ -170,17 +196,83 @@ def _finite_or_nan(x: float) -> float:
     return x if math.isfinite(x) else math.nan
 
 
-def _latlon(nav_units: int, y: float, x: float) -> tuple[float, float]:
-    """(lat, lon) of an XTF coordinate pair, NaN when not lat/lon or not set (0, 0)."""
-    if nav_units != NAV_UNITS_LATLON or (y == 0.0 and x == 0.0):
-        return math.nan, math.nan
-    if not (math.isfinite(y) and math.isfinite(x) and abs(y) <= 90.0 and abs(x) <= 180.0):
-        return math.nan, math.nan
-    return float(y), float(x)
+class XtfPositions:
+    """How the coordinate pairs of one XTF file become lat/lon: its ``NavUnits`` and, for
+    positions that are not marked as degrees, the CRS the user gave (:mod:`.crs`).
+
+    Build it with :func:`file_positions`, which refuses a file whose positions cannot be
+    read without a CRS.
+    """
+
+    def __init__(self, nav_units: int, projection: Projection | None = None) -> None:
+        self.nav_units = int(nav_units)
+        self.projection = projection
+        self.usable = projection is not None or self.nav_units == NAV_UNITS_LATLON
+
+    def describe(self) -> str:
+        """One phrase for the summary: what the positions are and how they were read."""
+        if self.projection is None:
+            return "lat/lon (NavUnits 3)" if self.usable else f"not used (NavUnits {self.nav_units})"
+        what = "projected metres" if self.nav_units == NAV_UNITS_METRES else f"NavUnits {self.nav_units}"
+        return f"{what} in {self.projection.crs} ({self.projection.name}), converted to WGS 84 lat/lon"
+
+    def latlon(self, y: float, x: float) -> tuple[float, float]:
+        """(lat, lon) of an XTF coordinate pair (Y northing or latitude, X easting or
+        longitude); NaN when not set ((0, 0): a recorder's "no fix") or not a position."""
+        if not self.usable or (y == 0.0 and x == 0.0) or not (math.isfinite(y) and math.isfinite(x)):
+            return math.nan, math.nan
+        if self.projection is not None:
+            return self.projection.to_latlon(float(x), float(y))
+        if not (abs(y) <= 90.0 and abs(x) <= 180.0):
+            return math.nan, math.nan
+        return float(y), float(x)
 
 
-def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfStats) -> XtfPing | None:
-    """A sonar ping packet as :class:`XtfPing`, or None (counted in ``stats``)."""
+def file_positions(header: XTFFileHeader, path: str, crs: str = "", *, option: str = "--crs") -> XtfPositions:
+    """The :class:`XtfPositions` of a file from its header and the user's CRS (``""``: none).
+
+    ``NavUnits`` 3 (degrees) needs no CRS; one given is ignored with a warning. ``NavUnits``
+    0 (projected metres) and values the XTF specification does not define need one.
+
+    Raises
+    ------
+    LogFormatError
+        Positions that are not degrees and no CRS: one line naming ``--crs``.
+    ConfigError
+        A CRS pyproj does not know, or not a horizontal one (:func:`.crs.projection`).
+    """
+    units = int(header.NavUnits)
+    if units == NAV_UNITS_LATLON:
+        if crs:
+            log.warning("%s: positions are degrees (XTF NavUnits 3): %s %s ignored", path, option, crs)
+        return XtfPositions(units)
+    if not crs:
+        what = ("positions are projected metres (XTF NavUnits 0)" if units == NAV_UNITS_METRES else
+                f"NavUnits {units} is not an XTF value (0 projected metres, 3 degrees), so what the "
+                "positions are is unknown")
+        raise LogFormatError(f"{what}: give their CRS with --crs (or the recording.crs key), e.g. "
+                             f"--crs {EXAMPLE_CRS}" + ("" if units == NAV_UNITS_METRES else
+                                                       " for UTM 10N metres, --crs EPSG:4326 for degrees"),
+                             path=path)
+    return XtfPositions(units, projection(crs, option=option))
+
+
+def read_positions(path: str | os.PathLike[str], crs: str = "", *, option: str = "--crs") -> XtfPositions:
+    """:func:`file_positions` of a file, reading its header only (so a command fails at once)."""
+    path = str(path)
+    try:
+        with open(path, "rb") as fh:
+            header = read_file_header(fh, path)
+    except OSError as exc:
+        raise LogFormatError(f"cannot read: {exc.strerror or exc}", path=path) from None
+    return file_positions(header, path, crs, option=option)
+
+
+def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfStats,
+               positions: XtfPositions | None = None) -> XtfPing | None:
+    """A sonar ping packet as :class:`XtfPing`, or None (counted in ``stats``); positions read
+    as ``positions`` says (default: degrees when the header says so, else none)."""
+    positions = positions or XtfPositions(header.NavUnits)
     try:
         t = _utc(p.Year, p.Month, p.Day, p.Hour, p.Minute, p.Second) + p.HSeconds / 100.0
     except ValueError:
@@ -192,9 +284,9 @@ def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfS
         fix_t = day0 + p.FixTimeHour * 3600 + p.FixTimeMinute * 60 + p.FixTimeSecond + p.FixTimeHsecond / 100.0
         if fix_t - t > 43200.0:  # fix stamped just before midnight, ping just after
             fix_t -= 86400.0
-    lat, lon = _latlon(header.NavUnits, p.SensorYcoordinate, p.SensorXcoordinate)
+    lat, lon = positions.latlon(p.SensorYcoordinate, p.SensorXcoordinate)
     if math.isnan(lat):
-        lat, lon = _latlon(header.NavUnits, p.ShipYcoordinate, p.ShipXcoordinate)
+        lat, lon = positions.latlon(p.ShipYcoordinate, p.ShipXcoordinate)
     has_pos = not math.isnan(lat)
     nav = XtfNav(t=t, lat_deg=lat, lon_deg=lon,
                  heading_deg=_finite_or_nan(p.SensorHeading) % 360.0 if has_pos else math.nan,
@@ -233,15 +325,17 @@ def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfS
     return XtfPing(nav=nav, channels=channels, ping_number=int(p.PingNumber), offset=offset)
 
 
-def parse_nav_packet(kind: int, raw: bytes, header: XTFFileHeader, offset: int = 0) -> XtfNav:
-    """A navigation, attitude or gyro packet as :class:`XtfNav`; ValueError when its time is not a time."""
+def parse_nav_packet(kind: int, raw: bytes, header: XTFFileHeader, offset: int = 0,
+                     positions: XtfPositions | None = None) -> XtfNav:
+    """A navigation, attitude or gyro packet as :class:`XtfNav`; :class:`PacketQuirk` when its
+    time is not a time."""
     if kind in (NAVIGATION, POS_RAW_NAVIGATION):
         p = (XTFHeaderNavigation if kind == NAVIGATION else XTFPosRawNavigation).from_buffer_copy(raw[:ctypes.sizeof(
             XTFHeaderNavigation if kind == NAVIGATION else XTFPosRawNavigation)])
         # Microsecond: 0-999999 in packet 42, but 0-9999 (tenths of a millisecond) in packet 107
         tick = 1e-6 if kind == NAVIGATION else 1e-4
         t = _utc(p.Year, p.Month, p.Day, p.Hour, p.Minute, p.Second) + p.Microsecond * tick
-        lat, lon = _latlon(header.NavUnits, p.RawYcoordinate, p.RawXcoordinate)
+        lat, lon = (positions or XtfPositions(header.NavUnits)).latlon(p.RawYcoordinate, p.RawXcoordinate)
         return XtfNav(t=t, lat_deg=lat, lon_deg=lon, height_m=_finite_or_nan(p.RawAltitude),
                       source=f"xtf:{type_name(kind)}", offset=offset)
     if kind == ATTITUDE:
@@ -273,8 +367,8 @@ MIN_BYTES = {SONAR: ctypes.sizeof(XTFPingHeader), NAVIGATION: ctypes.sizeof(XTFH
              RAW_SERIAL: ctypes.sizeof(XTFRawSerialHeader)}
 
 
-def iter_xtf_items(path: str | os.PathLike[str], stats: XtfStats,
-                   header_out: list | None = None) -> Iterator[XtfPing | XtfNav | XtfSerial]:
+def iter_xtf_items(path: str | os.PathLike[str], stats: XtfStats, header_out: list | None = None, *,
+                   crs: str = "", positions: XtfPositions | None = None) -> Iterator[XtfPing | XtfNav | XtfSerial]:
     """Stream the pings, navigation fixes and serial text of an XTF file, in file order.
 
     Parameters
@@ -285,17 +379,29 @@ def iter_xtf_items(path: str | os.PathLike[str], stats: XtfStats,
         Filled as the file streams (packets by type, skipped, bad, truncated, errors).
     header_out
         If given, the file header (``XTFFileHeader``) is appended to it before the first item.
+    crs
+        CRS of positions that are not degrees (:func:`file_positions`); "" = none.
+    positions
+        How to read positions, already decided (:func:`read_positions`); overrides ``crs``.
 
     Raises
     ------
     LogFormatError
-        The file is not XTF (file header). Damage further in ends the stream with a warning.
+        The file is not XTF (file header), or its positions need a CRS and none was given.
+        Damage further in ends the stream with a warning.
+    ConfigError
+        ``crs`` is not a CRS pyproj knows.
+
+    Packets that cannot be used (a zero date, too short, unparsable) are counted by kind in
+    ``stats.quirks``, the first of each kind kept as an example in ``stats.errors``.
     """
     path = str(path)
     stats.path = stats.path or path
     size = os.path.getsize(path)
     with open(path, "rb") as fh:
         header = read_file_header(fh, path)
+        positions = positions or file_positions(header, path, crs)
+        stats.positions = positions.describe()
         if header_out is not None:
             header_out.append(header)
         offset = FILE_HEADER_BYTES
@@ -328,20 +434,21 @@ def iter_xtf_items(path: str | os.PathLike[str], stats: XtfStats,
                 continue
             if len(raw) < MIN_BYTES[kind]:
                 stats.bad += 1
-                stats.errors.append(f"{path}: {name} packet at byte {here}: {len(raw)} bytes, "
-                                    f"its header alone is {MIN_BYTES[kind]}")
+                stats.quirk(f"short packet ({name})", f"{path}: {name} packet at byte {here}: {len(raw)} bytes, "
+                                                      f"its header alone is {MIN_BYTES[kind]}")
                 continue
             try:
                 if kind == SONAR:
                     item = parse_ping(XTFPingHeader.create_from_buffer(io.BytesIO(raw), file_header=header),
-                                      header, here, stats)
+                                      header, here, stats, positions)
                 elif kind == RAW_SERIAL:
                     item = parse_raw_serial(raw, here)
                 else:
-                    item = parse_nav_packet(kind, raw, header, here)
+                    item = parse_nav_packet(kind, raw, header, here, positions)
             except (RuntimeError, ValueError, IndexError, OverflowError) as exc:
                 stats.bad += 1
-                stats.errors.append(f"{path}: {name} packet at byte {here}: {exc}")
+                why = exc.kind if isinstance(exc, PacketQuirk) else "unparsable"
+                stats.quirk(f"{why} ({name})", f"{path}: {name} packet at byte {here}: {exc}")
                 continue
             if item is not None:
                 yield item

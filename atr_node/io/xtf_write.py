@@ -2,13 +2,15 @@
 
 The structures are pyxtf's ctypes classes serialised with ``bytes(struct)``; the layout is::
 
-    XTFFileHeader (1024 bytes): NavUnits 3 (lat/lon), 2 sonar channels,
+    XTFFileHeader (1024 bytes): NavUnits 3 (lat/lon), or 0 (projected metres) when the
+        writer is given a projected ``crs``, 2 sonar channels,
         ChanInfo[0] port (TypeOfChannel 1), ChanInfo[1] starboard (2): BytesPerSample and
         SampleFormat from the first tile's wire dtype (uint16: 2/3, uint8: 1/8, float32: 4/5),
         CorrectionFlags 1 (slant range) or 2 (ground range), Frequency in kHz;
         NoteString "atr-node mission=<name> leg=<n> seq=<first seq>" (read back by the reader)
     per ping: XTFPingHeader (256 bytes): UTC time to the hundredth of a second, PingNumber,
-        SoundVelocity 750 (one way), Sensor/Ship X,Y = lon, lat, SensorHeading = ShipGyro,
+        SoundVelocity 750 (one way), Sensor/Ship X,Y = lon, lat (or easting, northing in
+        the ``crs``: XTF does not record which projection), SensorHeading = ShipGyro,
         SensorPrimaryAltitude, SensorSpeed (knots, = dx / median ping interval)
       then per channel XTFPingChanHeader (64 bytes): ChannelNumber, SlantRange (= GroundRange
         for ground-range tiles) = dr x samples, TimeDelay = (range0 - dr/2) / 750,
@@ -34,7 +36,8 @@ from typing import Any, Iterable
 import numpy as np
 from pyxtf.xtf_ctypes import XTFFileHeader, XTFPingChanHeader, XTFPingHeader
 
-from ..errors import TileError
+from ..errors import ConfigError, TileError
+from .crs import projection
 from ..records.tile import Tile
 from .atrlog import LogRecord
 from .xtf_packets import KNOT_M_S, NOTE_PREFIX
@@ -67,9 +70,23 @@ def _samples(tile: Tile, dtype: np.dtype) -> np.ndarray:
 
 
 class XtfWriter:
-    """Write tiles to an XTF file; use as a context manager or call :meth:`close`."""
+    """Write tiles to an XTF file; use as a context manager or call :meth:`close`.
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    Parameters
+    ----------
+    path
+        The file to write (overwritten).
+    crs
+        "" (default): positions in degrees (``NavUnits`` 3). A projected CRS (e.g.
+        ``EPSG:32619``): positions as easting and northing in it (``NavUnits`` 0), as some
+        recorders write them; reading such a file back needs the same ``--crs``.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, crs: str = "") -> None:
+        self.projection = projection(crs) if crs else None
+        if self.projection is not None and not self.projection.projected:
+            raise ConfigError(f"--crs {crs!r} is geographic: an XTF file in degrees says so (NavUnits 3); "
+                              "write it without --crs, or give a projected CRS")
         self.path = Path(path)
         self._fh = open(self.path, "wb")
         self._pending: Tile | None = None
@@ -128,7 +145,7 @@ class XtfWriter:
         h.RecordingProgramName = b"atr-node"
         h.RecordingProgramVersion = b"1"
         h.ThisFileName = self.path.name.encode("ascii", "replace")[:63]
-        h.NavUnits = 3
+        h.NavUnits = 3 if self.projection is None else 0
         if tile is None:
             return h
         note = f"{NOTE_PREFIX}mission={tile.mission} leg={tile.leg} seq={tile.seq}"
@@ -161,6 +178,12 @@ class XtfWriter:
         data = {s: _samples(tiles[s], dtype) for s in sides}
         dt = float(np.median(np.diff(first.ping_time))) if first.rows > 1 else 0.0
         speed_kn = first.dx_m / dt / KNOT_M_S if dt > 0 else 0.0
+        x = y = None
+        if first.nav is not None:
+            # XTF X is longitude or easting, Y latitude or northing
+            x, y = first.nav.lon_deg, first.nav.lat_deg
+            if self.projection is not None:
+                x, y = self.projection.from_latlon(first.nav.lat_deg, first.nav.lon_deg)
         chans = {}
         for s in sides:
             t = tiles[s]
@@ -190,8 +213,8 @@ class XtfWriter:
             p.SensorSpeed = speed_kn
             if first.nav is not None:
                 nav = first.nav
-                p.SensorYcoordinate = p.ShipYcoordinate = nav.lat_deg[i]
-                p.SensorXcoordinate = p.ShipXcoordinate = nav.lon_deg[i]
+                p.SensorYcoordinate = p.ShipYcoordinate = y[i]
+                p.SensorXcoordinate = p.ShipXcoordinate = x[i]
                 p.SensorHeading = p.ShipGyro = nav.heading_deg[i]
                 p.SensorPrimaryAltitude = nav.altitude_m[i]
             p.NumChansToFollow = len(sides)
@@ -206,9 +229,10 @@ class XtfWriter:
         self.stats.pings += first.rows
 
 
-def write_xtf(path: str | os.PathLike[str], records: Iterable[LogRecord]) -> XtfWriteStats:
-    """Write the sonar records of a record stream (e.g. an .atrlog) as an XTF file."""
-    with XtfWriter(path) as w:
+def write_xtf(path: str | os.PathLike[str], records: Iterable[LogRecord], *, crs: str = "") -> XtfWriteStats:
+    """Write the sonar records of a record stream (e.g. an .atrlog) as an XTF file (positions
+    in ``crs`` when given, see :class:`XtfWriter`)."""
+    with XtfWriter(path, crs=crs) as w:
         for rec in records:
             w.write_record(rec)
     return w.stats

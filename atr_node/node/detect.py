@@ -15,6 +15,7 @@ import numpy as np
 
 from ..config import DetectorSettings, TemplateSettings
 from ..detectors import Detection, find_detections, score_strip
+from ..detectors.objects import find_objects, group_detections
 from ..detectors.sat import Workspace
 
 
@@ -75,10 +76,23 @@ def detect(job: DetectJob, workspace: Workspace | None = None) -> DetectResult:
     covered, dets = {}, {}
     shape = (job.core[1] - job.core[0], job.pixels.shape[1])
     sweep: dict[str, dict[float, list[Detection]]] | None = {} if job.sweep else None
+    ds = job.detectors
+    # extended objects (a wreck) and bands, once per unit for every detector
+    # (detectors/objects.py); without them, the extent filter alone, as find_detections applies it
+    objects = find_objects(job.pixels, job.background, dr_m=job.dr_m, dx_m=job.dx_m,
+                           template_length_m=job.template.length_m, echo_width_m=job.template.echo_width_m,
+                           highlight=ds.object_highlight, shadow=ds.object_shadow,
+                           max_length_m=ds.max_object_length_m) if ds.objects else None
 
     def extract(s: np.ndarray, d: str, tau: float) -> list[Detection]:
-        return find_detections(s, tau, detector=d, range0_m=job.range0_m, dr_m=job.dr_m, dx_m=job.dx_m,
-                               min_extent_m=job.detectors.min_extent_m, max_extent_m=job.detectors.max_extent_m)
+        if objects is None:
+            return find_detections(s, tau, detector=d, range0_m=job.range0_m, dr_m=job.dr_m, dx_m=job.dx_m,
+                                   min_extent_m=ds.min_extent_m, max_extent_m=ds.max_extent_m)
+        # components up to an object's length: one too long for a mine may lie on a wreck
+        raw = find_detections(s, tau, detector=d, range0_m=job.range0_m, dr_m=job.dr_m, dx_m=job.dx_m,
+                              min_extent_m=ds.min_extent_m, max_extent_m=ds.max_object_length_m)
+        return group_detections(raw, objects, core_start=job.core[0], core_rows=shape[0], range0_m=job.range0_m,
+                                dr_m=job.dr_m, min_extent_m=ds.min_extent_m, max_extent_m=ds.max_extent_m)
 
     for d in job.enabled:
         s = scores[d]

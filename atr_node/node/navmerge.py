@@ -6,6 +6,12 @@ until they come. When the INS stays silent past ``max_gap_s`` after a held tile'
 the tile is released with its pings that have no fresh fix set to no data (NaN): they give
 no evidence, rather than evidence put in the wrong place. Such pings are counted.
 
+A tile that leaves with no usable nav at all (or whose slant axis no ground-range tile could
+hold) is dropped: counted by reason in :attr:`NavMergeStats.dropped` and passed to
+``on_drop`` (the pipeline counts it in ``tiles_dropped``). The first drop of each reason is
+logged as a warning, the others at debug level: a recording without positions drops every
+tile, and one line per tile says nothing more.
+
 Clock: ``now`` is the arrival time of the record being processed (the live wall clock, or the
 recorded arrival time in a replay), so replays are deterministic.
 """
@@ -16,6 +22,7 @@ import logging
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -34,6 +41,14 @@ class NavMergeStats:
     tiles_without_nav: int = 0
     nav_jump_pings: int = 0
     reasons: dict[str, int] = field(default_factory=dict)
+    dropped: dict[str, int] = field(default_factory=dict)
+    """Tiles dropped here, by reason (:data:`NO_NAV`, :data:`AXIS_TOO_LONG`)."""
+
+
+NO_NAV = "no usable nav"
+"""Drop reason: no ping of the tile has a position (none of its own, no INS fix near it)."""
+AXIS_TOO_LONG = "slant range axis too long"
+"""Drop reason: the slant axis asks for a ground-range tile no memory could hold."""
 
 
 class NavMerger:
@@ -50,14 +65,23 @@ class NavMerger:
         Steps between pings faster than this are nav jumps (in tile nav too).
     default_altitude_m
         Altitude for slant-to-ground conversion when nav has none.
+    first_return_band_m
+        Slant metres after the first bottom return (R = altitude) that become no data in the
+        ground-range tile (:meth:`Tile.ground_range`): the bright nadir return and its ringing
+        are not seabed evidence (``sensor.first_return_band_m``).
+    on_drop
+        Called with the tile and the reason of every tile dropped here.
     """
 
     def __init__(self, track: NavTrack, *, max_gap_s: float = 2.0, max_speed_m_s: float = 15.0,
-                 default_altitude_m: float = 14.0, max_held: int = 64) -> None:
+                 default_altitude_m: float = 14.0, max_held: int = 64, first_return_band_m: float = 0.0,
+                 on_drop: Callable[[Tile, str], None] | None = None) -> None:
+        self.on_drop = on_drop
         self.track = track
         self.max_gap_s = float(max_gap_s)
         self.max_speed_m_s = float(max_speed_m_s)
         self.default_altitude_m = float(default_altitude_m)
+        self.first_return_band_m = float(first_return_band_m)
         self.max_held = int(max_held)
         self._held: deque[Tile] = deque()
         self.stats = NavMergeStats()
@@ -112,6 +136,14 @@ class NavMerger:
         nav = tile.nav
         return nav, ~((nav.lat_deg == 0.0) & (nav.lon_deg == 0.0))
 
+    def _drop(self, tile: Tile, reason: str, detail: str = "") -> None:
+        n = self.stats.dropped.get(reason, 0) + 1
+        self.stats.dropped[reason] = n
+        log.log(logging.WARNING if n == 1 else logging.DEBUG, "%s: %s%s; dropped%s", tile.ident, reason, detail,
+                " (further drops for this reason are counted, not logged)" if n == 1 else "")
+        if self.on_drop is not None:
+            self.on_drop(tile, reason)
+
     def _finish(self, tile: Tile, nav, valid: np.ndarray) -> Tile | None:
         valid = valid.copy()
         jumps = nav_jumps(nav, tile.ping_time, max_speed_m_s=self.max_speed_m_s)
@@ -125,7 +157,7 @@ class NavMerger:
             # placeholder position
             self.stats.tiles_without_nav += 1
             self.stats.pings_without_nav += tile.rows
-            log.warning("%s: no usable nav for any ping; dropped", tile.ident)
+            self._drop(tile, NO_NAV, " for any ping")
             return None
         if not valid.all():
             self.stats.pings_without_nav += int((~valid).sum())
@@ -141,12 +173,15 @@ class NavMerger:
                     or far_cols > max(64 * tile.cols, 1 << 16)):
                 key = "slant range axis too long for a ground-range tile"
                 self.stats.reasons[key] = self.stats.reasons.get(key, 0) + 1
-                log.warning("%s: %s (range0_m %r, dr_m %r); dropped", tile.ident, key, tile.range0_m, tile.dr_m)
+                self._drop(tile, AXIS_TOO_LONG, f" for a ground-range tile (range0_m {tile.range0_m!r}, "
+                                                f"dr_m {tile.dr_m!r})")
                 return None
             alt = nav.altitude_m
             # the ground axis of a slant tile: from 0 to the farthest slant range, same spacing
             cols = int(math.floor((tile.range0_m + tile.dr_m * (tile.cols - 1)) / tile.dr_m + 1e-9)) + 1
-            tile = tile.with_nav(nav).ground_range(alt, range0_m=0.0, cols=cols)
+            # water column (R < H) and first-return band (H <= R < H + band) become no data
+            tile = tile.with_nav(nav).ground_range(alt, range0_m=0.0, cols=cols,
+                                                   first_return_band_m=self.first_return_band_m)
         else:
             tile = tile.with_nav(nav)
         if not valid.all():

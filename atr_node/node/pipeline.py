@@ -17,7 +17,11 @@ up at full tile size and the evidence grid's memory is mapped while the worker s
 
 The pipeline is a deterministic function of the record sequence: units are fused in the
 order they were formed, whatever the worker's timing, and the on-line calibration switch
-happens at a tile count. Two modes:
+happens at a point of the record sequence: in replay the first ``calibration.online_tiles``
+tiles (all of a shorter recording) are held, after they are offered to the calibration
+worker and before they reach the strips, until the worker has them all; the node then waits
+for the on-line model and processes every tile with it (:meth:`Pipeline._release_held`). A
+live node cannot hold tiles: it switches when the model arrives. Two modes:
 
 - ``replay``: never degrades. When the units in flight hold more than
   :data:`REPLAY_INFLIGHT_MPX`, ``feed`` fuses the oldest before it goes on (back-pressure),
@@ -96,6 +100,8 @@ class PipelineStats:
     tiles_done: int = 0
     tiles_rejected: int = 0
     tiles_dropped: int = 0
+    """Tiles accepted and then dropped: for navigation (no usable nav, an impossible slant
+    axis: :mod:`.navmerge`) and, live, for load; by reason in ``drop_reasons``."""
     units: int = 0
     units_degraded: int = 0
     units_main: int = 0
@@ -104,6 +110,8 @@ class PipelineStats:
     fuse_s: float = 0.0
     pixels: int = 0
     rejections: Counter = field(default_factory=Counter)
+    drop_reasons: Counter = field(default_factory=Counter)
+    """``tiles_dropped`` by reason (``no usable nav``, ``queue full``, ...)."""
     latency_s: deque = field(default_factory=lambda: deque(maxlen=2000))
     stages: deque = field(default_factory=lambda: deque(maxlen=2000))
     """Per-unit stage times (:class:`~atr_node.node.timing.UnitTiming`), the last 2000."""
@@ -154,12 +162,22 @@ class Pipeline:
         self.emit = emit or (lambda msg: None)
         self.mode = mode
         self.online = online
+        self._cal_held: list[Tile] = []
+        """Replay: tiles (with nav, in order) offered to the on-line calibration and held
+        until its model is ready; not yet in the strips or the shared-memory slots."""
+        self.should_stop: Callable[[], bool] | None = None
+        """Polled while waiting for the on-line model (the service's stop request): a
+        signal ends the wait at once, the tiles staying held."""
+        self.model_use: dict[str, Any] | None = None
+        """How the on-line calibration ended (:meth:`OnlineCalibrator.outcome`); kept in
+        snapshots, since a resumed node no longer has the calibrator."""
         self.enabled = tuple(settings.detectors.enabled)
         self.stats = PipelineStats()
         self.decoder = NavDecoder(dbc=str(resolve_relative(settings, settings.links.can_dbc)))
         self.track = NavTrack(max_gap_s=settings.node.nav_max_gap_s, default_altitude_m=settings.sensor.altitude_m)
         self.merger = NavMerger(self.track, max_gap_s=settings.node.nav_max_gap_s,
-                                default_altitude_m=settings.sensor.altitude_m)
+                                default_altitude_m=settings.sensor.altitude_m, on_drop=self._on_nav_drop,
+                                first_return_band_m=settings.sensor.first_return_band_m)
         self.strips: StripAssembler | None = None
         self.frame: MissionFrame | None = None
         self.tracker: ContactTracker | None = None
@@ -301,14 +319,14 @@ class Pipeline:
         """End of input: release held tiles, flush strips, drain the worker, commit every leg."""
         for tile in self.merger.poll(math.inf, flush=True):
             self._on_tile(tile)
+        if self._cal_held and not self._release_held():
+            return  # a signal while waiting for the on-line model: the tiles stay held
         if self.strips is not None:
             for unit in self.strips.flush():
                 self._submit(unit)
         self._collect(block=True)
         self.grid.close_all()
         self._update_contacts(self._last_t)
-        if self.online is not None:
-            self.online.end_of_input()
 
     def close(self) -> None:
         if self._pool is not None:
@@ -331,7 +349,30 @@ class Pipeline:
 
     @property
     def queue_depth(self) -> int:
-        return len(self._inflight) + self.merger.held
+        return len(self._inflight) + self.merger.held + len(self._cal_held)
+
+    @property
+    def calibration_held(self) -> int:
+        """Tiles held for the on-line calibration (replay), not processed yet."""
+        return len(self._cal_held)
+
+    def hold_for_calibration(self, tiles: list[Tile]) -> None:
+        """A snapshot's held tiles, restored: offered again to this run's calibrator (the
+        same tiles in the same order give the same model) and held as before."""
+        for tile in tiles:
+            if self.online is not None and self.online.deterministic:
+                self.online.offer(tile)
+            self._cal_held.append(tile)
+
+    def model_report(self) -> dict[str, Any]:
+        """Which model each part of the run used and why (:func:`~atr_node.calibration.online.model_report`)."""
+        from ..calibration.online import model_name, model_report
+
+        outcome = self.model_use
+        if outcome is None and self.online is not None:
+            outcome = self.online.outcome()  # not finished yet
+        fallback = outcome["fallback"] if outcome else model_name(self.model)
+        return model_report(outcome, tiles=self.tiles_merged, fallback=fallback)
 
     @property
     def contacts(self) -> list[dict[str, Any]]:
@@ -354,6 +395,41 @@ class Pipeline:
         self.track.forget_before(float(tile.ping_time[0]) - NAV_KEEP_S)
         if self.frame is None:
             self._init_frame(float(tile.nav.lat_deg[0]), float(tile.nav.lon_deg[0]))
+        oc = self.online
+        if oc is not None and oc.deterministic and not oc.done:
+            # replay: held (nav attached, not in the strips) until the worker has its images
+            oc.offer(tile)
+            self._cal_held.append(tile)
+            if not oc.gathering:
+                self._release_held()
+            return
+        if self._cal_held and not self._release_held():  # tiles of a snapshot, no calibrator now
+            return
+        if oc is not None:
+            oc.offer(tile)  # live: the first tiles go to the worker, the node does not wait
+        self._process(tile)
+
+    def _release_held(self) -> bool:
+        """Replay: wait for the on-line model (ending the worker's input if it still
+        gathers: a short recording), then process the held tiles with it, in order. False
+        when a signal ended the wait (the tiles stay held)."""
+        oc = self.online
+        if oc is not None and oc.deterministic and not oc.done:
+            if not oc.wait(self.should_stop, from_tile=self.tiles_merged + 1):
+                return False
+        self._note_model()
+        held, self._cal_held = self._cal_held, []
+        for tile in held:
+            self._process(tile)
+        return True
+
+    def _note_model(self) -> None:
+        if self.online is not None and self.online.done and self.model_use is None:
+            self.model = self.online.model
+            self.model_use = self.online.outcome()
+
+    def _process(self, tile: Tile) -> None:
+        """A tile with nav into the strips (and the units it completes to the detectors)."""
         if self.strips is None:
             geom = window_geometry(tile.ranges_m[-1:], dr_m=tile.dr_m, dx_m=tile.dx_m,
                                    altitude_m=float(np.median(tile.nav.altitude_m)), template=self.settings.template)
@@ -362,8 +438,6 @@ class Pipeline:
                                          alloc=self._unit_pixels)
         self.tiles_merged += 1
         self.mission = tile.mission  # evidence deltas name their mission (atr_node.node.exchange)
-        if self.online is not None:
-            self.online.offer(tile)
         if self._strip_leg is not None and tile.leg != self._strip_leg:
             # a new leg: end the old leg's strips on both sides before any of the new leg's
             # evidence, so the old leg is complete when the grid closes it
@@ -381,9 +455,16 @@ class Pipeline:
             return self.channel.alloc(shape, np.float32)
         return np.empty(shape, np.float32)
 
+    def _on_nav_drop(self, tile: Tile, reason: str) -> None:
+        """A tile the nav merge dropped: counted with the tiles dropped for load."""
+        self.stats.tiles_dropped += 1
+        self.stats.drop_reasons[reason] += 1
+
     def _current_model(self) -> PerformanceModel:
-        if self.online is not None:
+        if self.online is not None and not self.online.done:
+            # live: switches when the worker has delivered (the unit is of tile tiles_merged)
             self.model = self.online.model_for(self.tiles_merged)
+            self._note_model()
         return self.model
 
     def _submit(self, unit: StripUnit) -> None:
@@ -396,6 +477,7 @@ class Pipeline:
                 if self.channel is not None:
                     self.channel.discard(unit.pixels)
                 self.stats.tiles_dropped += len(unit.completed)
+                self.stats.drop_reasons["queue full"] += len(unit.completed)
                 log.warning("dropped leg %d %s core of %d rows: %d units in flight", unit.leg, unit.side,
                             unit.core_rows, depth)
                 return

@@ -60,6 +60,8 @@ class NodeService:
         self.publisher = Publisher(publish, curve=self.curve) if publish else None
         self.on_contact = on_contact
         self.pipeline = Pipeline(settings, model=model, emit=self._emit, workers=workers, mode=mode, online=online)
+        self._stop = threading.Event()
+        self.pipeline.should_stop = self._stop.is_set  # a signal ends a wait for the on-line model
         self.exchange = None
         if settings.node.exchange_publish or settings.node.exchange_peers:  # evidence exchange (issue 11)
             import socket
@@ -73,7 +75,6 @@ class NodeService:
         self.notifier = Notifier()
         self.position = 0
         self.resumed_from: int | None = None
-        self._stop = threading.Event()
         self._hb_stop = threading.Event()
         self._t0 = time.monotonic()
         self._hb_thread: threading.Thread | None = None
@@ -136,6 +137,9 @@ class NodeService:
                     break
             if ended and finish:
                 self.pipeline.finish()
+                if self.pipeline.calibration_held:  # a signal while waiting for the on-line model
+                    ended = False
+                    self.notifier.stopping()
                 if self.state_dir is not None:
                     self.snapshot()
             elif not ended:
@@ -253,13 +257,14 @@ class NodeService:
         st = self.pipeline.stats
         p50, p99 = st.latency_ms()
         return {"records": st.records, "tiles_in": st.tiles_in, "tiles_done": st.tiles_done,
-                "tiles_rejected": st.tiles_rejected, "tiles_dropped": st.tiles_dropped, "units": st.units,
+                "tiles_rejected": st.tiles_rejected, "tiles_dropped": st.tiles_dropped,
+                "drop_reasons": dict(st.drop_reasons), "units": st.units,
                 "units_degraded": st.units_degraded, "pixels": st.pixels, "detect_s": round(st.detect_s, 3),
                 "fuse_s": round(st.fuse_s, 3), "latency_p50_ms": round(p50, 1), "latency_p99_ms": round(p99, 1),
                 "contacts": len(self.pipeline.contacts), "nav": self.pipeline.decoder.stats(),
                 "navmerge": vars(self.pipeline.merger.stats), "rejections": dict(st.rejections),
                 "snapshots": self.snapshots, "snapshot_failures": self.snapshot_failures,
-                "resumed_from": self.resumed_from,
+                "resumed_from": self.resumed_from, "model": self.pipeline.model_report(),
                 "exchange": None if self.exchange is None else {**self.exchange.counters, **self.exchange.grid.counters}}
 
 
@@ -285,13 +290,19 @@ def write_detections(path: str | Path, pipeline: Pipeline) -> None:
                                  "gamma": r.gamma, "confidence": r.confidence}) + "\n")
 
 
-def open_recording(path: str | Path) -> Iterator[LogRecord]:
-    """Records of an .atrlog or an .xtf file, for replay."""
+def open_recording(path: str | Path, *, crs: str = "", altitude: str = "auto") -> Iterator[LogRecord]:
+    """Records of an .atrlog or an .xtf file, for replay; ``crs``: of XTF positions in
+    projected metres (``--crs``, :mod:`atr_node.io.crs`). A file that needs it and has none
+    fails here, before the first record. ``altitude``: of XTF tiles (``recording.altitude``)."""
     p = str(path)
     if p.lower().endswith(".xtf"):
         from ..io.xtf import iter_xtf_records
 
-        return iter(iter_xtf_records(p))
+        return iter(iter_xtf_records(p, crs=crs, altitude=altitude))
+    if p.lower().endswith(".jsf"):  # EdgeTech JSF: same records, same options (:mod:`atr_node.io.jsf`)
+        from ..io.jsf import iter_jsf_records
+
+        return iter(iter_jsf_records(p, crs=crs, altitude=altitude))
     from ..io.atrlog import read_atrlog
 
     return read_atrlog(p)

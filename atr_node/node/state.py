@@ -4,8 +4,9 @@ A snapshot is a folder ``snap-<n>`` in the node's state directory holding
 
 - ``grid.npz``: the evidence grid and the contact tracker (``atr_node.fusion.snapshot``);
 - ``node.npz``: strips (pending and context rows), the INS track, background trackers, the
-  mission frame, counters, the on-line model if one took over, and ``position``: how many
-  input records the snapshot accounts for;
+  mission frame, counters, the on-line model if one took over (and how: ``model_use``), the
+  tiles a replay holds for the on-line calibration (offered again to the resumed node's
+  calibrator), and ``position``: how many input records the snapshot accounts for;
 
 and the file ``CURRENT`` names the newest complete snapshot. A new snapshot is written to a
 fresh folder, flushed and fsync'ed, and only then does ``CURRENT`` change, by an atomic
@@ -19,6 +20,8 @@ tile's evidence is lost and none is counted twice.
 """
 
 from __future__ import annotations
+
+from collections import Counter
 
 import json
 import os
@@ -132,8 +135,10 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         "tiles_merged": p.tiles_merged, "leg": p.leg, "strip_leg": p._strip_leg, "last_t": p._last_t,
         "stats": {k: getattr(p.stats, k) for k in ("records", "tiles_in", "tiles_done", "tiles_rejected",
                                                     "tiles_dropped", "units", "units_degraded", "pixels")},
+        "drop_reasons": dict(p.stats.drop_reasons), "rejections": dict(p.stats.rejections),
         "model": p.model.to_dict() if getattr(p, "online", None) is not None else None,
         "online_done": bool(p.online.done) if getattr(p, "online", None) is not None else None,
+        "model_use": getattr(p, "model_use", None),
         "strips": None, "bg": [],
     }
     for k, v in p.track.state().items():
@@ -152,6 +157,11 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     meta["held"] = len(p.merger._held)
     for i, tile in enumerate(p.merger._held):
         arrays[f"held_{i}"] = np.frombuffer(tile.pack(), dtype=np.uint8)
+    # replay: tiles held for the on-line calibration (with their nav; float32 keeps NaN pixels)
+    cal_held = getattr(p, "_cal_held", [])
+    meta["cal_held"] = len(cal_held)
+    for i, tile in enumerate(cal_held):
+        arrays[f"cal_held_{i}"] = np.frombuffer(tile.replace(wire_dtype="float32").pack(), dtype=np.uint8)
     for i, ((leg, side), (bg, med)) in enumerate(p._bg.items()):
         meta["bg"].append([leg, side])
         arrays[f"bg_{i}_b"] = bg.background if bg.background is not None else np.zeros(0)
@@ -169,6 +179,10 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     p.leg = meta["leg"]
     for k, v in meta["stats"].items():
         setattr(p.stats, k, v)
+    # counted by reason: after a resume the reasons still add up to the totals
+    p.stats.drop_reasons = Counter(meta.get("drop_reasons", {}))
+    p.stats.rejections = Counter(meta.get("rejections", {}))
+    p.model_use = meta.get("model_use")
     if meta.get("model") is not None:
         p.model = PerformanceModel.from_dict(meta["model"], where="node snapshot")
         if p.online is not None and meta.get("online_done"):
@@ -190,6 +204,7 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     p.merger._held.clear()
     for i in range(int(meta.get("held", 0))):
         p.merger._held.append(Tile.unpack(a[f"held_{i}"].tobytes()))
+    p.hold_for_calibration([Tile.unpack(a[f"cal_held_{i}"].tobytes()) for i in range(int(meta.get("cal_held", 0)))])
 
     p._bg = {}
     f = p.settings.detectors.background_forgetting

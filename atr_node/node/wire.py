@@ -7,7 +7,9 @@ ZeroMQ PUB socket; every message is two frames::
 
     contact   {type "contact", v 1, id int, state "new"|"update"|"withdrawn", t float,
                lat_deg, lon_deg, east_m, north_m, sigma_m, bel, pl, m_theta: float,
-               looks int, detections int, detectors [str], legs [int]}
+               looks int, detections int, detectors [str], legs [int]
+               (v1.1, optional, all three or none: an extended object, a wreck)
+               length_m, width_m: float >= 0, heading_deg: float in [0, 180)}
     heartbeat {type "heartbeat", v 1, t, uptime_s: float, tiles_in, tiles_done,
                tiles_dropped, tiles_rejected, queue_depth: int,
                latency_ms {p50, p99: float}, mode "nominal"|"degraded"}
@@ -33,6 +35,10 @@ CONTACT_FIELDS: dict[str, type | tuple[type, ...]] = {
     "east_m": float, "north_m": float, "sigma_m": float, "bel": float, "pl": float, "m_theta": float,
     "looks": int, "detections": int, "detectors": list, "legs": list,
 }
+CONTACT_OPTIONAL_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "length_m": float, "width_m": float, "heading_deg": float,
+}
+"""(ICD v1.1 section 3) The extent of an extended object: present together, or absent."""
 HEARTBEAT_FIELDS: dict[str, type | tuple[type, ...]] = {
     "type": str, "v": int, "t": float, "uptime_s": float, "tiles_in": int, "tiles_done": int,
     "tiles_dropped": int, "tiles_rejected": int, "queue_depth": int, "latency_ms": dict, "mode": str,
@@ -43,13 +49,17 @@ MODES = ("nominal", "degraded")
 
 def contact_message(*, id: int, state: str, t: float, lat_deg: float, lon_deg: float, east_m: float,
                     north_m: float, sigma_m: float, bel: float, pl: float, m_theta: float, looks: int,
-                    detections: int, detectors: Sequence[str], legs: Sequence[int]) -> dict[str, Any]:
-    """The ICD ``contact`` map, with every field of its declared type."""
+                    detections: int, detectors: Sequence[str], legs: Sequence[int], length_m: float | None = None,
+                    width_m: float | None = None, heading_deg: float | None = None) -> dict[str, Any]:
+    """The ICD ``contact`` map, with every field of its declared type (the extent only when given)."""
     m = {"type": "contact", "v": WIRE_VERSION, "id": int(id), "state": str(state), "t": float(t),
          "lat_deg": float(lat_deg), "lon_deg": float(lon_deg), "east_m": float(east_m),
          "north_m": float(north_m), "sigma_m": float(sigma_m), "bel": float(bel), "pl": float(pl),
          "m_theta": float(m_theta), "looks": int(looks), "detections": int(detections),
          "detectors": [str(d) for d in detectors], "legs": [int(x) for x in legs]}
+    for k, v in (("length_m", length_m), ("width_m", width_m), ("heading_deg", heading_deg)):
+        if v is not None:
+            m[k] = float(v)
     problems = validate_contact(m)
     if problems:
         raise ValueError(f"contact {id}: {'; '.join(problems)}")
@@ -66,13 +76,16 @@ def heartbeat_message(*, t: float, uptime_s: float, tiles_in: int, tiles_done: i
             "latency_ms": {"p50": float(p50_ms), "p99": float(p99_ms)}, "mode": str(mode)}
 
 
-def _check_fields(m: Any, fields: Mapping[str, Any], kind: str) -> list[str]:
+def _check_fields(m: Any, fields: Mapping[str, Any], kind: str,
+                  optional: Mapping[str, Any] | None = None) -> list[str]:
     if not isinstance(m, Mapping):
         return [f"expected a map, got {type(m).__name__}"]
     problems = []
-    for k, tp in fields.items():
+    optional = optional or {}
+    for k, tp in {**fields, **optional}.items():
         if k not in m:
-            problems.append(f"missing '{k}'")
+            if k not in optional:
+                problems.append(f"missing '{k}'")
             continue
         v = m[k]
         if tp is float:
@@ -83,7 +96,7 @@ def _check_fields(m: Any, fields: Mapping[str, Any], kind: str) -> list[str]:
             ok = isinstance(v, tp)
         if not ok:
             problems.append(f"'{k}' should be {getattr(tp, '__name__', tp)}, got {type(v).__name__}")
-    extra = set(m) - set(fields)
+    extra = set(m) - set(fields) - set(optional)
     if extra:
         problems.append(f"unexpected keys {sorted(extra)}")
     if not problems:
@@ -96,9 +109,18 @@ def _check_fields(m: Any, fields: Mapping[str, Any], kind: str) -> list[str]:
 
 def validate_contact(m: Any) -> list[str]:
     """Problems that keep ``m`` from being an ICD v1 contact (empty when it is one)."""
-    problems = _check_fields(m, CONTACT_FIELDS, "contact")
+    problems = _check_fields(m, CONTACT_FIELDS, "contact", CONTACT_OPTIONAL_FIELDS)
     if problems:
         return problems
+    extent = [k for k in CONTACT_OPTIONAL_FIELDS if k in m]
+    if extent:
+        if len(extent) != len(CONTACT_OPTIONAL_FIELDS):
+            problems.append(f"extent needs all of {list(CONTACT_OPTIONAL_FIELDS)}, got only {extent}")
+        elif not all(math.isfinite(m[k]) for k in extent):
+            problems.append("extent (length_m, width_m, heading_deg) is not finite")
+        elif not (0.0 <= m["width_m"] <= m["length_m"] and 0.0 <= m["heading_deg"] < 180.0):
+            problems.append(f"need 0 <= width_m <= length_m and heading_deg in [0, 180), got length_m="
+                            f"{m['length_m']} width_m={m['width_m']} heading_deg={m['heading_deg']}")
     if m["state"] not in CONTACT_STATES:
         problems.append(f"state {m['state']!r} not in {CONTACT_STATES}")
     for k in ("lat_deg", "lon_deg", "east_m", "north_m", "sigma_m", "bel", "pl", "m_theta", "t"):

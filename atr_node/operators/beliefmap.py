@@ -66,7 +66,7 @@ def covered_cells(grid: EvidenceGrid, keys: Sequence[tuple[int, int]]) -> np.nda
         for layer in grid.open.values():
             s = layer.chunks.slot.get(key)
             if s is not None:  # an open layer holds -1 where a (detector, cell) got nothing
-                out[i] |= (layer.chunks.arr[s] >= 0.0).any(axis=(0, 1))
+                out[i] |= (layer.chunks.arr[s, :, 1] >= 0.0).any(axis=0)  # a Pd (a gate alone is no coverage)
     return out
 
 

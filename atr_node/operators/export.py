@@ -11,7 +11,8 @@ Three formats, each carrying every ICD section 3 contact field:
   ``ATR <id>``, description, ``TimeStamp``, a style by belief class, every ICD field in
   ``ExtendedData``, ``Point`` ``lon,lat,0``), elements in the schema's order. Opens in
   Google Earth and the usual mission planners (SeeTrack, QGIS, OpenCPN via GPX/KML import).
-- **CSV** (RFC 4180): a header of the ICD fields in ICD order plus ``time_utc``; list fields
+- **CSV** (RFC 4180): a header of the ICD fields in ICD order, the optional extent
+  (``length_m``, ``width_m``, ``heading_deg``: empty for a contact without one) and ``time_utc``; list fields
   (``detectors``, ``legs``) joined with ``;``. Carries ``lat_deg`` and ``lon_deg``, so the
   evaluation tools read it like a truth file (ICD section 5).
 
@@ -31,6 +32,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from ..errors import AtrError
+from ..node.wire import CONTACT_OPTIONAL_FIELDS
 from .book import ICD_FIELDS
 
 FORMATS = ("geojson", "kml", "csv")
@@ -55,8 +57,14 @@ def _ordered(contacts: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
     return sorted(contacts, key=lambda c: (-c["bel"], c["id"]))
 
 
+EXTENT_FIELDS: tuple[str, ...] = tuple(CONTACT_OPTIONAL_FIELDS)
+"""(ICD v1.1) An extended object's ``length_m``, ``width_m``, ``heading_deg``: in GeoJSON and
+KML when the contact has them; CSV columns always (empty when it has none)."""
+
+
 def _properties(c: Mapping[str, Any]) -> dict[str, Any]:
     props = {k: c[k] for k in ICD_FIELDS}
+    props.update({k: c[k] for k in EXTENT_FIELDS if c.get(k) is not None})
     props["detectors"] = list(props["detectors"])
     props["legs"] = list(props["legs"])
     props["time_utc"] = time_utc(c["t"])
@@ -124,7 +132,7 @@ def to_kml(contacts: Iterable[Mapping[str, Any]], *, name: str = "atr-node conta
 
 # ------------------------------------------------------------------------------- CSV
 def csv_columns() -> list[str]:
-    return [*ICD_FIELDS, "time_utc"]
+    return [*ICD_FIELDS, *EXTENT_FIELDS, "time_utc"]
 
 
 def to_csv(contacts: Iterable[Mapping[str, Any]]) -> str:
@@ -135,7 +143,7 @@ def to_csv(contacts: Iterable[Mapping[str, Any]]) -> str:
     for c in _ordered(contacts):
         props = _properties(c)
         w.writerow([";".join(map(str, v)) if isinstance(v, list) else (repr(v) if isinstance(v, float) else v)
-                    for v in (props[k] for k in csv_columns())])
+                    for v in (props.get(k, "") for k in csv_columns())])
     return buf.getvalue()
 
 

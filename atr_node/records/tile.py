@@ -214,7 +214,7 @@ class Tile:
         return self.nav.altitude_m
 
     def ground_range(self, altitude_m: np.ndarray | float | None = None, *, range0_m: float | None = None,
-                     cols: int | None = None) -> "Tile":
+                     cols: int | None = None, first_return_band_m: float = 0.0) -> "Tile":
         """This tile on a ground-range axis (SPEC section 0): ``r = sqrt(R^2 - H^2)``.
 
         The ground axis keeps the spacing ``dr_m``. By default it starts at the ground range
@@ -224,6 +224,11 @@ class Tile:
         column (R < H) are dropped and ground ranges with no slant sample are NaN. Pixels are
         interpolated linearly in slant range, row by row. A ground-range tile is returned
         unchanged.
+
+        ``first_return_band_m``: ground ranges whose slant range lies within this far beyond
+        the first bottom return (``H <= R < H + band``: the bright nadir return and its
+        ringing, stretched over the first metres of ground range) are NaN too: no data, so no
+        detector sees them and no evidence lands there.
         """
         if not self.slant:
             return self
@@ -258,6 +263,8 @@ class Tile:
         # Exact sample where the weight vanishes, so a NaN neighbour does not spread.
         out = np.where(w == 0, a0, a0 * (1 - w) + a1 * w).astype(np.float32)
         out[~inside] = np.nan
+        if first_return_band_m > 0:
+            out[slant_r < alt[:, None] + first_return_band_m] = np.nan
         return self.replace(pixels=out, range0_m=float(g0), slant=False, wire_dtype="float32")
 
 

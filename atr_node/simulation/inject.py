@@ -20,7 +20,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..config import SensorSettings, SimulationSettings, TemplateSettings
+from ..config import PopulationSettings, SensorSettings, SimulationSettings, TemplateSettings
 from ..errors import GeometryError
 from .meshes import Mesh, builtin_mesh, place
 from .performance import SonarModel
@@ -45,6 +45,18 @@ class Placement:
     burial_m: float = 0.0
     mesh: Mesh | None = field(default=None, compare=False)
     """A custom mesh (local frame, see :mod:`.meshes`); None: the built-in ``shape``."""
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Factors on the mesh's length, width and height (local x, y, z)."""
+    roll_deg: float = 0.0
+    """Tilt about the target's own axis, then ``pitch_deg`` about its width; the tilted
+    target rests on its lowest point (:meth:`.Mesh.tilted`)."""
+    pitch_deg: float = 0.0
+    reflectivity_db: float = 0.0
+    """Echo level relative to the sonar model's: the echo intensity is multiplied by
+    ``10 ** (reflectivity_db / 10)``."""
+    nominal: bool = True
+    """Drawn from the nominal population (built-in size, level, proud, 0 dB); see
+    :func:`draw_placement`."""
 
 
 @dataclass(frozen=True)
@@ -70,7 +82,15 @@ class InjectedTarget:
     rho_shadow: float
     """Model shadow-to-background intensity ratio at ``range_m``."""
     rho_echo: float
-    """Model echo-to-background intensity ratio at ``range_m``."""
+    """Model echo-to-background intensity ratio at ``range_m`` (before ``reflectivity_db``)."""
+    reflectivity_db: float = 0.0
+    """Echo level relative to the model's (rendered echo = rho_echo 10^(dB/10) e g)."""
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+    height_m: float = float("nan")
+    """Height of the (scaled, tilted) target above the seabed once buried: what the sonar sees."""
+    nominal: bool = True
 
 
 def anchor_column(sig: Signature, row: int, rho_shadow: np.ndarray, rho_echo: np.ndarray) -> int:
@@ -115,8 +135,61 @@ def _ratios(model: SonarModel, range0_m: float, dr_m: float, cols: int,
     return rs, re
 
 
+@lru_cache(maxsize=32)
+def _builtin(shape: str) -> Mesh:
+    """Built-in meshes are immutable values: build each once."""
+    return builtin_mesh(shape)
+
+
 def _mesh_for(p: Placement) -> Mesh:
-    return p.mesh if p.mesh is not None else builtin_mesh(p.shape)
+    """The placement's mesh in its local frame: scaled, then tilted and set back down."""
+    m = p.mesh if p.mesh is not None else _builtin(p.shape)
+    if p.scale != (1.0, 1.0, 1.0):
+        m = m.scaled(*p.scale)
+    if p.roll_deg or p.pitch_deg:
+        m = m.tilted(roll_deg=p.roll_deg, pitch_deg=p.pitch_deg)
+    return m
+
+
+def draw_placement(rng: np.random.Generator, *, row_span: tuple[float, float], range_span_m: tuple[float, float],
+                   population: PopulationSettings | None = None,
+                   shapes: tuple[str, ...] = ("cylinder", "cone", "wedge", "sphere"),
+                   max_burial_m: float = 0.0) -> Placement:
+    """One random target: shape, along-track row, ground range and heading (the nominal
+    population), and with ``population.mode = "varied"`` its size, height, tilt, burial and
+    reflectivity (issue 17 item 5; :class:`~atr_node.config.PopulationSettings`).
+
+    Without ``population`` (or with ``mode = "fixed"``) the draws are exactly those of the
+    nominal population, so a seed gives the same targets as before the population existed.
+    A varied draw first decides (probability ``nominal_fraction``) whether the target is
+    nominal; the rest of its draws always come in the same order, so a seed fixes them all.
+    The burial depth is a fraction of the height of the scaled, tilted mesh.
+    """
+    if population is not None:
+        shapes = population.shapes
+    varied = population is not None and population.mode == "varied"
+    nominal = not varied or bool(rng.uniform() < population.nominal_fraction)
+    shape = str(rng.choice(shapes))
+    row = float(rng.uniform(*row_span))
+    range_m = float(rng.uniform(*range_span_m))
+    heading = float(rng.uniform(0.0, 360.0))
+    if not varied:
+        burial = float(rng.uniform(0.0, max_burial_m)) if max_burial_m > 0 else 0.0
+        return Placement(shape=shape, row=row, range_m=range_m, heading_deg=heading, burial_m=burial)
+    pop = population
+    size = rng.uniform(*pop.size_scale)
+    scale = (float(size * rng.uniform(*pop.axis_scale)), float(size * rng.uniform(*pop.axis_scale)),
+             float(size * rng.uniform(*pop.height_scale)))
+    roll, pitch = (float(a) for a in rng.uniform(-pop.tilt_deg, pop.tilt_deg, 2))
+    burial_fraction = float(rng.uniform(*pop.burial_fraction))
+    reflectivity_db = float(rng.uniform(*pop.reflectivity_db))
+    if nominal:
+        return Placement(shape=shape, row=row, range_m=range_m, heading_deg=heading, nominal=True)
+    p = Placement(shape=shape, row=row, range_m=range_m, heading_deg=heading, scale=scale, roll_deg=roll,
+                  pitch_deg=pitch, reflectivity_db=reflectivity_db, nominal=False)
+    burial_m = burial_fraction * _mesh_for(p).height_m
+    return Placement(shape=shape, row=row, range_m=range_m, heading_deg=heading, burial_m=burial_m, scale=scale,
+                     roll_deg=roll, pitch_deg=pitch, reflectivity_db=reflectivity_db, nominal=False)
 
 
 def _altitude(altitude_m: float | np.ndarray) -> float:
@@ -142,7 +215,8 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
                    template: TemplateSettings | None = None, kind: str = "intensity",
                    shapes: tuple[str, ...] = ("cylinder", "cone", "wedge", "sphere"),
                    range_span_m: tuple[float, float] | None = None, max_burial_m: float = 0.0,
-                   g: np.ndarray | None = None, max_tries: int = 30) -> tuple[np.ndarray, list[InjectedTarget]]:
+                   population: PopulationSettings | None = None, g: np.ndarray | None = None,
+                   max_tries: int = 30) -> tuple[np.ndarray, list[InjectedTarget]]:
     """Inject simulated targets into a copy of a ground-range tile.
 
     Parameters
@@ -169,7 +243,10 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
     range_span_m
         Ground ranges allowed for random targets (default: the whole tile).
     max_burial_m
-        Random burial depth is uniform in [0, max_burial_m].
+        Random burial depth is uniform in [0, max_burial_m] (without ``population``).
+    population
+        The random targets' population (:func:`draw_placement`; it replaces ``shapes`` and
+        ``max_burial_m``); None: the nominal population.
     g : ndarray, shape (cols,), optional
         Background intensity curve g(r); default: measured on this tile.
     max_tries
@@ -204,7 +281,8 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
     taken: list[tuple[int, int, int, int]] = []
 
     def do(p: Placement, check: bool) -> bool:
-        mesh = place(_mesh_for(p), along_m=p.row * dx_m, range_m=p.range_m, heading_deg=p.heading_deg,
+        local = _mesh_for(p)
+        mesh = place(local, along_m=p.row * dx_m, range_m=p.range_m, heading_deg=p.heading_deg,
                      burial_m=p.burial_m)
         sig = trace(mesh, range0_m=range0_m, dr_m=dr_m, dx_m=dx_m, rows=rows, cols=cols, altitude_m=H, subrays=k)
         if sig.empty or (sig.echo.max() <= 0 and sig.p_shadow.max() <= 0):
@@ -219,15 +297,21 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
             win = host[fp[0]:fp[1], fp[2]:fp[3]]
             if np.isnan(win).mean() > 0.05 or not np.all(np.isfinite(g[fp[2]:fp[3]])):
                 return False
-        render(host, sig, g=g, rho_shadow=rho_s, rho_echo=rho_e, rng=rng, kind=kind)
+        # Reflectivity scales the echo intensity only: the shadow is the seabed's business.
+        rho_e_t = rho_e if p.reflectivity_db == 0.0 else rho_e * 10.0 ** (p.reflectivity_db / 10.0)
+        render(host, sig, g=g, rho_shadow=rho_s, rho_echo=rho_e_t, rng=rng, kind=kind)
         row = int(round(p.row))
-        col = anchor_column(sig, row, rho_s, rho_e)
+        col = anchor_column(sig, row, rho_s, rho_e_t)
         jc = min(max(int(round((p.range_m - range0_m) / dr_m)), 0), cols - 1)
         targets.append(InjectedTarget(shape=p.shape, row=row, col=col, range_m=float(p.range_m),
                                       heading_deg=float(p.heading_deg) % 360.0, burial_m=float(p.burial_m),
                                       footprint=fp, echo_sum=float(sig.echo.sum()),
                                       shadow_px=float(sig.p_shadow.sum()), rho_shadow=float(rho_s[jc]),
-                                      rho_echo=float(rho_e[jc])))
+                                      rho_echo=float(rho_e[jc]), reflectivity_db=float(p.reflectivity_db),
+                                      scale=tuple(float(f) for f in p.scale), roll_deg=float(p.roll_deg),
+                                      pitch_deg=float(p.pitch_deg),
+                                      height_m=max(local.height_m - float(p.burial_m), 0.0),
+                                      nominal=bool(p.nominal)))
         taken.append(fp)
         return True
 
@@ -246,9 +330,8 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         return host, targets
     for _ in range(n):
         for _try in range(max_tries):
-            p = Placement(shape=str(rng.choice(shapes)), row=float(rng.uniform(gap[0], rows - gap[0])),
-                          range_m=float(rng.uniform(lo, hi)), heading_deg=float(rng.uniform(0.0, 360.0)),
-                          burial_m=float(rng.uniform(0.0, max_burial_m)) if max_burial_m > 0 else 0.0)
+            p = draw_placement(rng, row_span=(gap[0], rows - gap[0]), range_span_m=(lo, hi),
+                               population=population, shapes=shapes, max_burial_m=max_burial_m)
             if do(p, check=True):
                 break
     if len(targets) < n:

@@ -82,6 +82,30 @@ class Mesh:
         v = self.vertices_m @ rot.T + np.array([x_m, y_m, z_m])
         return Mesh(v, self.faces, self.name)
 
+    def scaled(self, x: float = 1.0, y: float = 1.0, z: float = 1.0) -> "Mesh":
+        """Stretched by a factor per local axis (length, width, height) about x = y = z = 0,
+        so a mesh resting on z = 0 keeps resting on it."""
+        if not all(math.isfinite(f) and f > 0 for f in (x, y, z)):
+            raise GeometryError(f"mesh {self.name!r}: scale factors must be finite and > 0, got {(x, y, z)}")
+        return Mesh(self.vertices_m * np.array([x, y, z]), self.faces, self.name)
+
+    def tilted(self, *, roll_deg: float = 0.0, pitch_deg: float = 0.0) -> "Mesh":
+        """Rolled about the local x axis, then pitched about y (right-handed, proper rotations,
+        so normals stay outward), and set back down: recentred on x = y = 0 (bounding box)
+        with its lowest point on z = 0, as a tilted object rests on a flat seabed."""
+        a, b = math.radians(roll_deg), math.radians(pitch_deg)
+        ca, sa, cb, sb = math.cos(a), math.sin(a), math.cos(b), math.sin(b)
+        roll = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
+        pitch = np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
+        v = self.vertices_m @ (pitch @ roll).T
+        lo, hi = Mesh(v, self.faces, self.name).bounds_m
+        return Mesh(v - [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]], self.faces, self.name)
+
+    @property
+    def height_m(self) -> float:
+        """Top of the mesh above z = 0 (its height when it rests on z = 0)."""
+        return float(self.bounds_m[1][2])
+
 
 # ----------------------------------------------------------------------------------------
 # Built-in shapes (outward normals, base on z = 0, centred on x = y = 0)

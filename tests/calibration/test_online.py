@@ -1,6 +1,7 @@
-"""The on-line calibration worker: a real spawned process fed real tiles. Replays switch at the
-configured tile count and give the same model as an in-process calibration of the same tiles;
-live mode never waits; a failing worker leaves the given model in place."""
+"""The on-line calibration worker: a real spawned process fed real tiles. Replays wait for the
+model once the worker has its images (or the input ended) and give the same model as an
+in-process calibration of the same tiles; live mode never waits; a failing worker leaves the
+given model in place. (The node's hold of its first tiles: test_online_short.py.)"""
 
 from __future__ import annotations
 
@@ -29,8 +30,7 @@ def _tiles(n: int, rows: int = 240, cols: int = 500) -> list[Tile]:
 
 
 SETTINGS = Settings(detectors=DetectorSettings(enabled=("mf", "z")),
-                    calibration=CalibrationSettings(online_tiles=2, online_iterations=2, targets_per_image=5,
-                                                    online_switch_tile=3, seed=4))
+                    calibration=CalibrationSettings(online_tiles=2, online_iterations=2, targets_per_image=5, seed=4))
 
 
 @pytest.fixture(scope="module")
@@ -38,19 +38,17 @@ def fallback() -> PerformanceModel:
     return PerformanceModel.shipped()
 
 
-def test_replay_switches_exactly_at_the_tile_count_with_the_same_model(fallback):
-    tiles = _tiles(5)
-    used = []
+def test_replay_waits_for_the_model_of_its_images_and_it_equals_an_in_process_one(fallback):
+    tiles = _tiles(3)
     with OnlineCalibrator(SETTINGS, fallback, deterministic=True) as oc:
-        for k, tile in enumerate(tiles):
-            model = oc.model_for(k)
-            used.append(model is fallback)
-            oc.offer(tile)
-            if k == 1:
-                time.sleep(0.5)  # the worker may well be done early: the switch must still wait
-        assert oc.switched_at == 3 and oc.error is None and oc.done
+        assert oc.gathering and oc.model is fallback
+        for tile in tiles:
+            oc.offer(tile)  # the third is not taken: online_tiles = 2
+        assert oc.offered == 2 and not oc.gathering and not oc.done
+        assert oc.wait() and oc.done
+        assert oc.switched_at == 1 and oc.error is None and oc.images == 2
         online = oc.model
-    assert used == [True, True, True, False, False]
+        assert oc.model_for(7) is online
     # the same tiles and seed in this process give the same tables
     images = [CalibrationImage.from_tile(t, altitude_m=SETTINGS.sensor.altitude_m) for t in tiles[:2]]
     resp = collect_responses(images, settings=SETTINGS, iterations=2, targets_per_image=5, seed=4)
@@ -83,19 +81,30 @@ def test_failed_worker_keeps_the_given_model(fallback):
     # its model and says why.
     bad = Settings(detectors=DetectorSettings(enabled=()), calibration=SETTINGS.calibration)
     with OnlineCalibrator(bad, fallback, deterministic=True) as oc:
-        for k, tile in enumerate(_tiles(4)):
-            assert oc.model_for(k) is fallback
+        for tile in _tiles(4):
             oc.offer(tile)
+        assert oc.wait() and oc.model is fallback and oc.model_for(5) is fallback
         assert oc.switched_at is None and oc.error and "no detector" in oc.error
+        assert oc.outcome()["state"] == "failed"
+
+
+def test_a_stop_request_ends_the_wait_and_a_later_wait_takes_the_answer(fallback):
+    with OnlineCalibrator(SETTINGS, fallback, deterministic=True) as oc:
+        for tile in _tiles(2):
+            oc.offer(tile)
+        assert oc.wait(lambda: True) is False and not oc.done and oc.model is fallback
+        assert oc.wait() and oc.switched_at == 1
 
 
 def test_end_of_input_before_enough_tiles(fallback):
     s = Settings(detectors=DetectorSettings(enabled=("mf",)),
-                 calibration=CalibrationSettings(online_tiles=4, online_iterations=1, targets_per_image=3,
-                                                 online_switch_tile=4))
+                 calibration=CalibrationSettings(online_tiles=4, online_iterations=1, targets_per_image=3))
     with OnlineCalibrator(s, fallback, deterministic=True) as oc:
         oc.offer(_tiles(1)[0])
         oc.end_of_input()
-        model = oc.model_for(4)
-        assert oc.switched_at == 4 and model is not fallback
+        assert not oc.gathering
+        model = oc.model_for(1)
+        assert oc.switched_at == 1 and model is not fallback
         assert model.provenance["n_images"] == 1
+        out = oc.outcome()
+        assert (out["offered"], out["of"], out["images"]) == (1, 4, 1)

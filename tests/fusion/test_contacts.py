@@ -8,7 +8,8 @@ import pytest
 
 from atr_node.config import FusionSettings
 from atr_node.fusion import Contact, ContactTracker, EvidenceGrid, and_contacts, or_contacts
-from atr_node.fusion.contacts import label_cells, label_graph
+from atr_node.fusion.contacts import detection_position, label_cells, label_graph
+from atr_node.fusion.grid import DetectionRecord
 
 from .conftest import DETS, TARGETS, mission_observations
 from .test_grid import TARGET, leg1, leg2
@@ -98,6 +99,7 @@ def test_hysteresis_between_report_and_withdraw(frame):
     grid = EvidenceGrid(fusion, gate_m=1.0)
     tracker = ContactTracker(fusion, frame, gate_m=1.0)
     iy, ix = grid.cell_of(10.0, 10.0)
+    grid.detections.append(DetectionRecord(1, "mf", 10.0, 10.0, 1.0, 0.5, 3.0))  # contacts need one (SPEC 7)
     grid.deposit(1, "mf", 1.0, iy, ix, m_t=0.5)  # Bel 0.5: between the thresholds, not born
     assert tracker.update(grid, 1.0) == []
     grid.deposit(2, "mf", 2.0, iy, ix, m_t=0.6)  # Bel 0.8: born
@@ -272,6 +274,8 @@ def test_incremental_update_joins_a_region_across_an_unchanged_chunk_border(fram
     full = ContactTracker(fusion, frame, gate_m=3.0, incremental=False)
     n = grid.n
     iy, ix = np.meshgrid(np.arange(4), np.arange(n - 3, n), indexing="ij")  # the right edge of chunk (0, 0)
+    # the detection behind the region, in chunk (0, 0) (a region without one is no contact)
+    grid.detections.append(DetectionRecord(1, "mf", (n - 2 + 0.5) * grid.cell_m, 1.5 * grid.cell_m, 1.0, 0.9, 3.0))
     grid.deposit(1, "mf", 1.0, iy, ix, m_t=0.9)
     assert [c.to_message() for c in inc.update(grid, 1.0)] == [c.to_message() for c in full.update(grid, 1.0)]
     iy, ix = np.meshgrid(np.arange(4), np.arange(n, n + 3), indexing="ij")  # the left edge of chunk (0, 1)

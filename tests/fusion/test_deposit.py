@@ -131,8 +131,17 @@ def test_a_nav_jump_takes_the_sparse_path_and_a_sub_window_is_exact():
 
 def per_pixel_grid(obs_list, fusion: FusionSettings, gate_m: float) -> EvidenceGrid:
     """Reference grid: every covered pixel and every gate cell through the low-level
-    ``deposit`` (a per-pixel maximum), the way add_observation deposited before issue 7."""
+    ``deposit`` (a per-pixel maximum), the way add_observation deposited before issue 7;
+    gate cells only where the same (leg, detector) covered a pixel (one footprint, SPEC
+    6.1: here a set of the leg's covered cells, found pixel by pixel beforehand)."""
     grid = EvidenceGrid(fusion, gate_m=gate_m)
+    footprint: dict[tuple[int, str], set[tuple[int, int]]] = {}
+    for obs in obs_list:
+        rows, _ = obs.shape
+        iy, ix = pixel_cells(obs.geometry, slice(0, rows), cell_m=grid.cell_m)
+        for d in obs.detectors:
+            footprint.setdefault((obs.leg, d.detector), set()).update(
+                zip(iy[d.covered].tolist(), ix[d.covered].tolist()))
     for obs in obs_list:
         rows, cols = obs.shape
         iy, ix = pixel_cells(obs.geometry, slice(0, rows), cell_m=grid.cell_m)
@@ -140,10 +149,13 @@ def per_pixel_grid(obs_list, fusion: FusionSettings, gate_m: float) -> EvidenceG
             cov = d.covered
             if cov.any():
                 grid.deposit(obs.leg, d.detector, obs.t, iy[cov], ix[cov], m_n=np.broadcast_to(d.pd, cov.shape)[cov])
+            seen = footprint[(obs.leg, d.detector)]
             for det in d.detections:
                 e, n = obs.geometry.world(det.row, det.col)
                 gy, gx = gate_cells(float(e), float(n), gate_m=gate_m, cell_m=grid.cell_m)
-                grid.deposit(obs.leg, d.detector, obs.t, gy, gx, m_t=det.confidence)
+                inside = np.array([(a, b) in seen for a, b in zip(gy.tolist(), gx.tolist())], dtype=bool)
+                if inside.any():
+                    grid.deposit(obs.leg, d.detector, obs.t, gy[inside], gx[inside], m_t=det.confidence)
     grid.close_all()
     return grid
 
@@ -190,7 +202,8 @@ def test_layer_terms_without_per_detector_terms_are_the_same_sums(k, case):
     # independent reference, element by element in float64 (signed zeros included)
     top = 1.0 - 1e-9
     c, q = p[:, :, 0], p[:, :, 1]
-    has_t, has_n = c >= 0, (q >= 0) & (c < 0)
+    # one footprint (SPEC 6.1): T only where the same detector covered the cell (q >= 0)
+    has_t, has_n = (c >= 0) & (q >= 0), (q >= 0) & (c < 0)
     ref_t = np.where(has_t, np.log1p(-np.minimum(np.abs(c), top)), 0.0)
     ref_n = np.where(has_n, np.log1p(-np.minimum(np.abs(q), top)), 0.0)
     assert per[:, :, 0].tobytes() == ref_t.tobytes() and per[:, :, 1].tobytes() == ref_n.tobytes()
@@ -198,7 +211,9 @@ def test_layer_terms_without_per_detector_terms_are_the_same_sums(k, case):
     assert d_lt.tobytes() == (((ref_t[:, 0] + ref_t[:, 1]) + ref_t[:, 2]) + ref_t[:, 3]).tobytes()
     assert n_cl == int(np.count_nonzero(has_t & (c > top)) + np.count_nonzero(has_n & (q > top)))
     covered = layer_terms_covered(p, 1e-9, per_detector=False)[4]
-    assert np.array_equal(covered, (p >= 0.0).any(axis=(1, 2)))
+    assert np.array_equal(covered, (q >= 0.0).any(axis=1))  # a gate alone covers nothing
+    if case == "mixed":
+        assert ((c >= 0) & (q < 0)).any()  # the clip was exercised
 
 
 def test_open_layer_read_out_matches_commit_after_the_deposit(frame, make_grid):

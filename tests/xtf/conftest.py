@@ -25,8 +25,10 @@ def nav_only(real_data: Path) -> Path:
 
 @pytest.fixture(scope="session")
 def iver2_read(iver2: Path):
-    """(records, stats, tiles) of the Iver2 file read once."""
-    reader = XtfReader(iver2)
+    """(records, stats, tiles) of the Iver2 file read once, altitude as recorded (the tests
+    compare the tiles with the file's own header fields; the image's altitude is tested in
+    test_bottom_track and test_altitude_tiling)."""
+    reader = XtfReader(iver2, altitude="altimeter")
     records = list(reader)
     tiles = [Tile.from_map(r.msg) for r in records if r.link == "sonar"]
     return records, reader.stats, tiles

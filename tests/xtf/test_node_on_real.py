@@ -42,8 +42,10 @@ def test_node_publishes_a_contact_on_the_wreck(iver2, iver2_read):
     on_wreck = [c for c, x in zip(live, d) if x <= ON_WRECK_M]
     assert on_wreck, f"no contact within {ON_WRECK_M} m of the hit; nearest {d.min():.1f} m"
     assert max(c["bel"] for c in on_wreck) >= Settings().fusion.report_bel
-    # more of the contacts are on the wreck than anywhere else on this otherwise plain seabed
-    assert len(on_wreck) > len(live) - len(on_wreck)
+    # one object, one contact (issue 18 item 5): the wreck is at most 3 contacts (it spans two
+    # strip units here), reported with its extent
+    assert len(on_wreck) <= 3, [(c["id"], c.get("length_m")) for c in on_wreck]
+    assert any(c.get("length_m", 0.0) >= 2 * Settings().template.length_m for c in on_wreck)
 
 
 def test_replay_command_takes_an_xtf_file(iver2, tmp_path):

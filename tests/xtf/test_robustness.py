@@ -62,7 +62,8 @@ def test_unparsable_ping_is_skipped_and_the_rest_read(iver2, tmp_path):
     (tmp_path / "chans.xtf").write_bytes(bytes(data))
     stats, tiles, _ = _read(tmp_path / "chans.xtf")
     assert stats.bad == 1 and stats.pings == 460 and not stats.truncated
-    assert f"sonar packet at byte {at}" in stats.errors[0]
+    assert stats.quirks == {"unparsable (sonar)": 1}
+    assert f"sonar packet at byte {at}" in stats.quirk_examples["unparsable (sonar)"]
 
 
 def test_unknown_and_unused_packet_types_are_counted(tmp_path):
@@ -148,11 +149,11 @@ def test_raw_serial_nmea_comes_out_as_recorded(tmp_path):
     assert nmea[0].t == max(1700000001.5, max(r.t for r in records[:records.index(nmea[0])]))
 
 
-def test_projected_navigation_is_reported_not_used(tmp_path):
+def test_projected_navigation_needs_crs(tmp_path):
     path = _write(tmp_path / "p.xtf", [make_tile("stbd", rows=2)])
     data = bytearray(path.read_bytes())
     struct.pack_into("<H", data, 164, 0)  # XTFFileHeader.NavUnits: 0 = metres
     path.write_bytes(bytes(data))
-    stats, tiles, records = _read(path)
-    assert tiles[0].nav is None and stats.pings_without_nav == 2
-    assert "NavUnits 0" in stats.errors[0] and not any(r.msg.startswith(b"$GPGGA") for r in records[:-1])
+    # a fuller test of --crs is in test_crs.py
+    with pytest.raises(LogFormatError, match=r"NavUnits 0\): give their CRS with --crs"):
+        XtfReader(path)

@@ -1,0 +1,27 @@
+"""``--crs``, shared by the commands that read XTF (replay, convert, batch, calibrate; ICD v1.1
+section 6): the command line's value wins over the ``recording.crs`` key."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ..io.crs import EXAMPLE_CRS, projection
+
+
+def add_crs_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--crs", metavar="CRS", default=None,
+                        help="coordinate reference system of XTF positions in projected metres (NavUnits 0), "
+                             f"e.g. {EXAMPLE_CRS} for UTM 10N (default: recording.crs; positions in degrees "
+                             "need none)")
+
+
+def resolve_crs(cli_value: str | None, settings: Any = None) -> str:
+    """The CRS to read recordings with ("" = none): ``--crs`` if given, else ``recording.crs``;
+    validated now, so an unknown one fails before any work (one line naming where it came from)."""
+    if cli_value is None and settings is None:
+        return ""
+    crs, option = (cli_value, "--crs") if cli_value is not None else (settings.recording.crs, "recording.crs")
+    if crs:
+        projection(crs, option=option)
+    return crs

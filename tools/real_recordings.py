@@ -1,0 +1,145 @@
+#!/usr/bin/env python3
+"""The node on the shared real side-scan recordings: contacts on the recorded waterfall.
+
+For every XTF file with side-scan pings in ``../shared/data/real/xtf`` (or the files given), it
+replays the file through the node (``atr-node replay FILE --publish none --speed max``, with
+the options given after ``--``), maps each contact back to its ping and slant range
+(:mod:`atr_node.evaluation.waterfall`), says whether it lies in the water column, on the
+first-return band or on the seabed, and draws the slant-range waterfall with the contacts, the
+altitude the node used and the objects read by eye, as ``docs/real_<file>.png``. It prints a
+table per file: tiles, contacts, where they lie, contacts without detection, and the objects
+read by eye found within 3 m (ICD section 5's match radius).
+
+    python tools/real_recordings.py                  # both shared files, figures into docs/
+    python tools/real_recordings.py --out /tmp/figs  # elsewhere
+    python tools/real_recordings.py FILE.xtf -- --online-calibration off
+
+Exit codes: 0 ok, 1 a file could not be replayed, 2 usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from atr_node.config import load_settings  # noqa: E402
+from atr_node.evaluation.waterfall import ZONES, SidePings, draw_waterfall, locate_contacts  # noqa: E402
+from atr_node.geo import MissionFrame  # noqa: E402
+from atr_node.records.tile import Tile  # noqa: E402
+
+SHARED = ROOT.parent / "shared" / "data" / "real" / "xtf"
+
+# Objects read by eye on the waterfalls (shared/data/real/README.md, docs/xtf.md): side, ping,
+# slant range (m), label. The wreck of the Iver2 file is a box: side, first and last ping,
+# largest slant range.
+MARKS = {
+    "river-000_1236": [("port", 325, 18.0, "small object (by eye)"), ("stbd", 925, 29.0, "small object (by eye)")],
+    "scotsman-iver2": [("stbd", 281, 4.06, "hit 1 138 281 (wreck)")],
+}
+WRECKS = {"scotsman-iver2": ("stbd", 160, 400, 14.0)}
+MATCH_M = 3.0
+
+
+def _replay(path: Path, contacts: Path, summary: Path, extra: list[str]) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "atr_node", "replay", str(path), "--publish", "none", "--speed", "max",
+           "--contacts-out", str(contacts), "--summary", str(summary), *extra]
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+
+
+def _tiles(path: Path, settings) -> list[Tile]:
+    from atr_node.node.service import open_recording
+
+    records = open_recording(path, crs=settings.recording.crs, altitude=settings.recording.altitude)
+    return [Tile.from_map(r.msg) for r in records if r.link == "sonar"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    extra: list[str] = []
+    if "--" in argv:
+        k = argv.index("--")
+        argv, extra = argv[:k], argv[k + 1:]
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("files", nargs="*", help="XTF files (default: the shared ones with side-scan pings)")
+    ap.add_argument("--out", default=str(ROOT / "docs"), help="folder for the figures (default docs/)")
+    ap.add_argument("--config", help="config file (as for replay; also passed to it)")
+    ap.add_argument("--json", help="write the table as JSON here")
+    args = ap.parse_args(argv)
+    files = [Path(f) for f in args.files] or [SHARED / "scotsman-iver2.xtf", SHARED / "river-000_1236.xtf"]
+    settings = load_settings(args.config)
+    if args.config:
+        extra = ["--config", args.config, *extra]
+    band_m = settings.sensor.first_return_band_m
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    table = []
+    failed = 0
+    for path in files:
+        with tempfile.TemporaryDirectory() as tmp:
+            cpath, spath = Path(tmp) / "contacts.jsonl", Path(tmp) / "summary.json"
+            print(f"{path.name}: replaying ...", file=sys.stderr)
+            proc = _replay(path, cpath, spath, extra)
+            if proc.returncode != 0:
+                print(f"{path}: replay failed (exit {proc.returncode}): {proc.stderr.strip().splitlines()[-1:]}",
+                      file=sys.stderr)
+                failed += 1
+                continue
+            contacts = [json.loads(x) for x in cpath.read_text().splitlines() if x.strip()]
+            summary = json.loads(spath.read_text())
+        live = [c for c in contacts if c["state"] != "withdrawn"]
+        tiles = _tiles(path, settings)
+        pings = [SidePings.from_tiles(tiles, s) for s in ("port", "stbd")]
+        nav = next(t for t in tiles if t.nav is not None)
+        frame = MissionFrame("utm", float(nav.nav.lat_deg[0]), float(nav.nav.lon_deg[0]))
+        places = locate_contacts(pings, live, frame, band_m=band_m)
+        dx = float(np.median([t.dx_m for t in tiles]))
+        marks = MARKS.get(path.stem, [])
+        found = []
+        for side, ping, r, label in marks:
+            near = [p for p in places if p.side == side
+                    and math.hypot((p.ping - ping) * dx, p.slant_range_m - r) <= MATCH_M]
+            found.append((label, [p.id for p in near]))
+        wreck = None
+        if path.stem in WRECKS:
+            side, a, b, rmax = WRECKS[path.stem]
+            wreck = [p.id for p in places if p.side == side and a <= p.ping <= b and p.slant_range_m <= rmax]
+        row = {"file": path.name, "tiles": summary["tiles_in"], "tile_pings": [t.rows for t in tiles if t.side == "port"],
+               "contacts": len(live), "placed": len(places),
+               "zones": {z: sum(1 for p in places if p.zone == z) for z in ZONES},
+               "no_detection": sum(1 for c in live if c.get("detections", 1) == 0),
+               "altitude_m": [round(float(np.nanmin(pings[1].altitude_m)), 2),
+                              round(float(np.nanmedian(pings[1].altitude_m)), 2),
+                              round(float(np.nanmax(pings[1].altitude_m)), 2)],
+               "found": {label: ids for label, ids in found}, "wreck_contacts": wreck,
+               "model": summary.get("model")}
+        table.append(row)
+        png = out / f"real_{path.stem}.png"
+        by_id = {int(c["id"]): c for c in live}
+        draw_waterfall(tiles, places, str(png), title=f"{path.name}: the node's contacts on the recorded waterfall",
+                       band_m=band_m, contacts=by_id, marks=marks)
+        print(f"\n{path.name}: {row['tiles']} tiles (pings per port tile: {row['tile_pings']})")
+        print(f"  altitude used min/median/max: {row['altitude_m']} m")
+        print(f"  contacts: {row['contacts']} live, {row['placed']} placed on the waterfall: "
+              + ", ".join(f"{n} {z}" for z, n in row["zones"].items()) + f"; {row['no_detection']} without detection")
+        for label, ids in found:
+            print(f"  {label}: {'found, contact ' + ', '.join(map(str, ids)) if ids else 'NOT found'}")
+        if wreck is not None:
+            print(f"  wreck: {len(wreck)} contact(s) {wreck}")
+        print(f"  figure: {png}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(table, indent=2))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
