@@ -71,7 +71,14 @@ class SensorSettings:
     """Slant metres after the first bottom return (R = altitude) that give no evidence: the
     bright nadir return and its ringing (0.3-0.4 m measured on the real XTF files, whose
     transmit ring-down lasts as long), which the ground-range conversion stretches over the
-    first metres next to the nadir. 0 keeps them."""
+    first metres next to the nadir. 0 keeps them. The least band: see ``first_return_level``."""
+    first_return_level: float = 0.7
+    """The band of a slant tile reaches on to where its first return has risen to this fraction
+    of the seabed level, measured on the tile's pings (0.6-1.8 m of slant on the Iver2 file,
+    whose beam pattern darkens the seabed next to the nadir): a darker seabed there looks like
+    a shadow to the detectors. 0 = the fixed band only."""
+    first_return_band_max_m: float = 2.5
+    """Longest band ``first_return_level`` may give, slant metres."""
     max_range_m: float = 150.0
     dr_m: float = 0.1
     dx_m: float = 0.1
@@ -83,6 +90,9 @@ class SensorSettings:
             _check(getattr(self, name) > 0, f"sensor.{name}", "must be > 0")
         _check(self.n_rx >= 1, "sensor.n_rx", "must be >= 1")
         _check(self.first_return_band_m >= 0, "sensor.first_return_band_m", "must be >= 0")
+        _check(0 <= self.first_return_level < 1, "sensor.first_return_level", "must be in [0, 1)")
+        _check(self.first_return_band_max_m >= self.first_return_band_m, "sensor.first_return_band_max_m",
+               "must be >= sensor.first_return_band_m")
 
 
 @dataclass(frozen=True)
@@ -126,7 +136,12 @@ class DetectorSettings:
     background_forgetting: float = 0.8
     """Weight of the past in the per-range background b(j) tracked over a leg's tiles."""
     min_valid_fraction: float = 0.5
-    """A window with fewer valid pixels than this scores NaN."""
+    """A window with fewer valid pixels than this scores NaN (SPEC 2; the SMF's context window)."""
+    min_valid_fraction_zones: float = 0.75
+    """The echo and shadow zones need this fraction of their pixels valid, or the window scores
+    NaN: at a no-data edge (the first-return band next to the nadir, the end of the swath) a
+    half-valid echo zone measures the edge, and scored 10-30 times a wreck's gamma on the real
+    Iver2 file (``docs/xtf.md``). The larger of this and ``min_valid_fraction`` applies."""
     lacunarity_floor: float = 1e-3
     """mean^2 floor of the lacunarity, as a fraction of the squared background."""
     sigma_floor: float = 1e-3
@@ -153,6 +168,8 @@ class DetectorSettings:
         _check(len(set(self.enabled)) == len(self.enabled), "detectors.enabled", "lists a detector twice")
         _check(0.0 <= self.background_forgetting < 1.0, "detectors.background_forgetting", "must be in [0, 1)")
         _check(0.0 < self.min_valid_fraction <= 1.0, "detectors.min_valid_fraction", "must be in (0, 1]")
+        _check(0.0 < self.min_valid_fraction_zones <= 1.0, "detectors.min_valid_fraction_zones",
+               "must be in (0, 1]")
         _check(self.lacunarity_floor > 0, "detectors.lacunarity_floor", "must be > 0")
         _check(self.sigma_floor > 0, "detectors.sigma_floor", "must be > 0")
         _check(0 < self.min_extent_m <= self.max_extent_m, "detectors.min_extent_m",
@@ -242,9 +259,15 @@ class PopulationSettings:
     those, and P(y) and the confidence on all. ``mode = "fixed"`` is the population before
     issue 17: every target nominal (the same draws, hence the same model, as then).
     Only calibration injection uses this; synthetic missions render their own targets.
+
+    The default is ``fixed`` while fusion is the paper's per-detector form: there the misses
+    of four correlated detectors are what cancel clutter, and the varied population's lower,
+    more honest Pd weakens them (measured: 19 -> 36 contacts on the river recording, +1 to +5
+    false alarms on simulated missions at equal Pd; docs/calibration.md). ``varied`` belongs
+    with the look-level evidence of SPEC 6.1.
     """
 
-    mode: Literal["varied", "fixed"] = "varied"
+    mode: Literal["varied", "fixed"] = "fixed"
     shapes: tuple[str, ...] = ("cylinder", "cone", "wedge", "sphere")
     size_scale: tuple[float, ...] = (0.5, 1.5)
     """Factor on every built-in dimension."""
@@ -258,8 +281,10 @@ class PopulationSettings:
     """Part of the target's height below the seabed."""
     reflectivity_db: tuple[float, ...] = (-10.0, 10.0)
     """Echo level relative to the sonar model's (``simulation.target_strength_db``)."""
-    nominal_fraction: float = 0.25
-    """Share of the targets drawn from the nominal population (``mode = "varied"``)."""
+    nominal_fraction: float = 0.5
+    """Share of the targets drawn from the nominal population (``mode = "varied"``). Dobeck's
+    tau sits in the tail of their responses, so it needs many: with 0.25 the thresholds came
+    out lower and false alarms rose by a third on the simulated missions (docs/calibration.md)."""
     threshold_on: Literal["nominal", "population"] = "nominal"
     """Targets Dobeck's rule reads: the nominal ones (thresholds as before issue 17, Pd of the
     whole population at them) or the whole population (lower thresholds)."""
@@ -376,6 +401,8 @@ class LinkSettings:
     can_dbc: str = "atr_node.dbc"
     """DBC file, relative to the config file's folder when not absolute."""
     publish_endpoint: str = "tcp://127.0.0.1:5560"
+    snapshot_endpoint: str = "tcp://127.0.0.1:5561"
+    """(ICD v1.1) Where the node answers late joiners' ``contacts`` requests (ROUTER); "" = off."""
     curve_secret_key_file: str = ""
     """ZeroMQ CURVE: the node's secret certificate (mode 0600); empty = CURVE off (bench loopback).
     See atr_node.security and docs/reliability.md."""

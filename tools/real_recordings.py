@@ -43,7 +43,9 @@ SHARED = ROOT.parent / "shared" / "data" / "real" / "xtf"
 # slant range (m), label. The wreck of the Iver2 file is a box: side, first and last ping,
 # largest slant range.
 MARKS = {
-    "river-000_1236": [("port", 325, 18.0, "small object (by eye)"), ("stbd", 925, 29.0, "small object (by eye)")],
+    # the port object: the shared README says "ping about 325 at 18 m slant"; on the waterfall
+    # the only object with a shadow there is at 23-25 m slant, pings 320-340 (docs/xtf.md)
+    "river-000_1236": [("port", 330, 23.5, "port object (by eye)"), ("stbd", 925, 29.0, "starboard object (by eye)")],
     "scotsman-iver2": [("stbd", 281, 4.06, "hit 1 138 281 (wreck)")],
 }
 WRECKS = {"scotsman-iver2": ("stbd", 160, 400, 14.0)}
@@ -61,6 +63,17 @@ def _tiles(path: Path, settings) -> list[Tile]:
 
     records = open_recording(path, crs=settings.recording.crs, altitude=settings.recording.altitude)
     return [Tile.from_map(r.msg) for r in records if r.link == "sonar"]
+
+
+def _band_merger(settings):
+    """The node's nav merger, for the first-return band it gives each slant tile (measured per
+    tile and side, as in replay: :mod:`atr_node.node.navmerge`)."""
+    from atr_node.node.navmerge import NavMerger
+    from atr_node.records.nav import NavTrack
+
+    s = settings.sensor
+    return NavMerger(NavTrack(), first_return_band_m=s.first_return_band_m, first_return_level=s.first_return_level,
+                     first_return_band_max_m=s.first_return_band_max_m)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -98,7 +111,9 @@ def main(argv: list[str] | None = None) -> int:
             summary = json.loads(spath.read_text())
         live = [c for c in contacts if c["state"] != "withdrawn"]
         tiles = _tiles(path, settings)
-        pings = [SidePings.from_tiles(tiles, s) for s in ("port", "stbd")]
+        merger = _band_merger(settings)
+        pings = [SidePings.from_tiles(tiles, s, band_m=lambda t: merger._band_m(t, t.nav.altitude_m))
+                 for s in ("port", "stbd")]
         nav = next(t for t in tiles if t.nav is not None)
         frame = MissionFrame("utm", float(nav.nav.lat_deg[0]), float(nav.nav.lon_deg[0]))
         places = locate_contacts(pings, live, frame, band_m=band_m)
@@ -125,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         table.append(row)
         png = out / f"real_{path.stem}.png"
         by_id = {int(c["id"]): c for c in live}
-        draw_waterfall(tiles, places, str(png), title=f"{path.name}: the node's contacts on the recorded waterfall",
+        draw_waterfall(tiles, pings, places, str(png), title=f"{path.name}: the node's contacts on the recorded waterfall",
                        band_m=band_m, contacts=by_id, marks=marks)
         print(f"\n{path.name}: {row['tiles']} tiles (pings per port tile: {row['tile_pings']})")
         print(f"  altitude used min/median/max: {row['altitude_m']} m")

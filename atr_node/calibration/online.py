@@ -128,6 +128,9 @@ class OnlineCalibrator:
         """Images the on-line model was made from (tiles too small for a target are skipped)."""
         self.skipped = 0
         self.error: str | None = None
+        self.waiting_since: float | None = None
+        """``time.monotonic()`` when the node began to wait for the worker's model (None: not
+        waiting); progress reports read it from another thread."""
         ctx = mp.get_context("spawn")  # no fork of a process that holds sockets and threads
         self._tiles = ctx.Queue(maxsize=self.n_tiles + 1)
         self._results = ctx.Queue(maxsize=1)
@@ -212,21 +215,30 @@ class OnlineCalibrator:
         self._poll(None)
         if self._pending is None:
             log.info("on-line calibration: waiting for the model from %d tile(s)", self._offered)
+            self.waiting_since = time.monotonic()
+        try:
+            self._wait_for_answer(stop, deadline, poll_s)
+        finally:
+            self.waiting_since = None
+        if stop is not None and self._pending is None and self.error is None:
+            return False
+        self._take(from_tile)
+        return True
+
+    def _wait_for_answer(self, stop, deadline: float, poll_s: float) -> None:
         while self._pending is None:
             if stop is not None and stop():
-                return False
+                return
             left = deadline - time.monotonic()
             if left <= 0:
                 self.error = f"no answer after {self.timeout_s:g} s"
-                break
+                return
             self._poll(min(poll_s, left))
             if self._pending is None and not self._proc.is_alive():
                 self._poll(0.5)  # its answer may still be in the pipe
                 if self._pending is None:
                     self.error = f"the worker exited with code {self._proc.exitcode} and no answer"
-                    break
-        self._take(from_tile)
-        return True
+                    return
 
     def model_for(self, tile_no: int) -> PerformanceModel:
         """The model for tile number ``tile_no`` (from 1). Live: the fallback until the

@@ -1,13 +1,17 @@
 """Options shared by the commands that follow a live node (export, monitor, exwpt): CURVE
-keys for a node whose PUB socket is a CURVE server (``atr_node.security``). Kept apart from
+keys for a node whose PUB socket is a CURVE server (``atr_node.security``) and the snapshot
+endpoint for late joiners (ICD v1.1). Kept apart from
 ``atr_node.operators`` so that building the CLI's parsers imports no ZeroMQ."""
 
 from __future__ import annotations
 
 import argparse
+import logging
 from typing import Any
 
 from ..errors import AtrError
+
+log = logging.getLogger(__name__)
 
 
 def add_curve_arguments(parser: argparse.ArgumentParser) -> None:
@@ -16,6 +20,31 @@ def add_curve_arguments(parser: argparse.ArgumentParser) -> None:
                         help="this tool's CURVE key pair (certificate with secret key, mode 0600), for a node "
                              "with links.curve_secret_key_file set; its public key must be authorized there")
     parser.add_argument("--node-key", metavar="FILE", help="the node's public key certificate (with --curve-key)")
+
+
+def add_snapshot_argument(parser: argparse.ArgumentParser) -> None:
+    """``--snapshot``: where to ask a late-joining node for its live contacts (ICD v1.1)."""
+    parser.add_argument("--snapshot", metavar="ENDPOINT",
+                        help="the node's snapshot endpoint, for the contacts published before this tool "
+                             "started (ICD v1.1; default: the port after the PUB endpoint, or "
+                             "links.snapshot_endpoint of --config; 'none' = do not ask)")
+
+
+def snapshot_from_args(args: argparse.Namespace, settings: Any = None) -> str | None:
+    """The snapshot endpoint to ask (None: do not ask): ``--snapshot``; else the port after
+    ``--from``; else ``links.snapshot_endpoint`` of ``settings`` (the ``--config`` the PUB
+    endpoint came from)."""
+    if args.snapshot is not None:
+        return None if args.snapshot in ("", "none") else args.snapshot
+    if getattr(args, "endpoint", None):
+        from ..node.snapshot_endpoint import derived_snapshot_endpoint
+
+        derived = derived_snapshot_endpoint(args.endpoint)
+        if derived is None and "://" in args.endpoint:  # ipc://: follow without (a bad --from fails on its own)
+            log.warning("no snapshot endpoint for --from %s (the port after a tcp:// one is the default): give "
+                        "--snapshot ENDPOINT for the contacts published before this tool started", args.endpoint)
+        return derived
+    return (settings.links.snapshot_endpoint or None) if settings is not None else None
 
 
 def curve_from_args(args: argparse.Namespace) -> Any:

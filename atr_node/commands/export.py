@@ -4,8 +4,9 @@ From a file (``atr-node replay --contacts-out FILE``)::
 
     atr-node export --contacts contacts.jsonl -o contacts.geojson -o contacts.kml -o contacts.csv
 
-From a live node (its PUB endpoint, ICD section 3): the contacts published while following,
-latest state per id, written when the node falls silent (--until-silent, default 5 s), after
+From a live node (its PUB endpoint, ICD section 3): the node's live contacts when the export
+started (its snapshot endpoint, ICD v1.1: --snapshot, by default the port after --from) and
+those published while following, latest state per id, written when the node falls silent (--until-silent, default 5 s), after
 --duration, or on Ctrl-C; with --refresh S the files are also rewritten every S seconds (point
 Google Earth's network link or QGIS at them)::
 
@@ -27,7 +28,7 @@ import threading
 import time
 
 from ..errors import AtrError
-from ._follow import add_curve_arguments, curve_from_args
+from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, snapshot_from_args
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--until-silent", type=float, default=5.0, metavar="S",
                         help="live: stop when the node sent nothing for S seconds (default 5; 0 = never)")
     parser.add_argument("--refresh", type=float, metavar="S", help="live: rewrite the files every S seconds too")
+    add_snapshot_argument(parser)
     add_curve_arguments(parser)
 
 
@@ -60,7 +62,7 @@ def _write(args: argparse.Namespace, book) -> int:
 def run(args: argparse.Namespace) -> int:
     from ..operators.book import read_contacts
     from ..operators.export import format_of
-    from ..operators.stream import NodeFollower
+    from ..operators.stream import NodeFollower, snapshot_text
 
     for path in args.out:  # a bad suffix fails before any waiting
         format_of(path, args.format)
@@ -71,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with NodeFollower(args.endpoint, curve=curve_from_args(args)) as follower:
+    with NodeFollower(args.endpoint, curve=curve_from_args(args), snapshot=snapshot_from_args(args)) as follower:
         last = [time.monotonic()]
         announce = follower.announcer("atr-node export")
 
@@ -92,8 +94,8 @@ def run(args: argparse.Namespace) -> int:
         n = _write(args, follower.book)
         st = follower.stats
         print(f"atr-node export: {n} contacts ({follower.book.n_withdrawn} withdrawn) from {args.endpoint} after "
-              f"{st.heartbeats} heartbeats, {st.contacts} contact messages, {st.bad} bad; stopped: {why} "
-              f"-> {', '.join(args.out)}", file=sys.stderr)
+              f"{st.heartbeats} heartbeats, {st.contacts} contact messages, {st.bad} bad; {snapshot_text(st)}; "
+              f"stopped: {why} -> {', '.join(args.out)}", file=sys.stderr)
         if st.heartbeats == 0 and st.contacts == 0:
             raise AtrError(f"nothing received from {args.endpoint}: is a node publishing there? (files written empty)")
     return 0

@@ -8,7 +8,8 @@ Sentence (docs/operators.md): $EXWPT,<category>,<hh:mm:ss.sss>,<lon>,<lat>,<dept
 ATR <id> <state> bel <Bel(T)>*<checksum>; category 3 = submerged mine by default. An update is
 sent when the contact moved --min-move-m or its belief changed --min-bel-change; withdrawn
 contacts only with --send-withdrawn. Sentences wait while the port is down and go out when it
-is back. Stops on Ctrl-C / SIGTERM, after --duration, or after --until-silent seconds of silence.
+is back. Started while the node runs, it first sends the live contacts of the node's snapshot
+endpoint (ICD v1.1; --snapshot, by default the port after --from). Stops on Ctrl-C / SIGTERM, after --duration, or after --until-silent seconds of silence.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import signal
 import sys
 import threading
 
-from ._follow import add_curve_arguments, curve_from_args
+from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, snapshot_from_args
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,6 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--send-withdrawn", action="store_true", help="also send withdrawn contacts")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     parser.add_argument("--until-silent", type=float, metavar="S", help="stop when the node was silent S seconds")
+    add_snapshot_argument(parser)
     add_curve_arguments(parser)
 
 
@@ -46,14 +48,16 @@ def run(args: argparse.Namespace) -> int:
     from ..operators.exwpt import ExwptOutput
     from ..operators.stream import NodeFollower
 
-    endpoint = args.endpoint or load_settings(args.config).links.publish_endpoint
+    settings = None if args.endpoint else load_settings(args.config)
+    endpoint = args.endpoint or settings.links.publish_endpoint
+    snapshot = snapshot_from_args(args, settings)
     out = ExwptOutput(args.port, baudrate=args.baudrate, category=args.category, depth_m=args.depth_m,
                       min_move_m=args.min_move_m, min_bel_change=args.min_bel_change,
                       send_withdrawn=args.send_withdrawn)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        with NodeFollower(endpoint, on_contact=out.offer, curve=curve_from_args(args)) as follower:
+        with NodeFollower(endpoint, on_contact=out.offer, curve=curve_from_args(args), snapshot=snapshot) as follower:
             announce = follower.announcer("atr-node exwpt")
 
             def tick() -> None:

@@ -6,7 +6,9 @@ by belief, redrawn in place in the terminal.
 
 --png FILE rewrites a belief-map PNG every --png-every seconds: contacts as circles of radius
 sigma coloured by Bel(T); with --state-dir (the node's snapshot folder) over the real belief
-map of the evidence grid, else over the extents of the contacts each leg saw. Stops on Ctrl-C,
+map of the evidence grid, else over the extents of the contacts each leg saw. A monitor
+started while the node runs shows the contacts published before it, from the node's snapshot
+endpoint (ICD v1.1; --snapshot, by default the port after --from). Stops on Ctrl-C,
 after --duration, or when the node was silent for --until-silent seconds (default: never).
 """
 
@@ -17,7 +19,7 @@ import signal
 import sys
 import threading
 
-from ._follow import add_curve_arguments, curve_from_args
+from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, snapshot_from_args
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,23 +34,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     parser.add_argument("--until-silent", type=float, metavar="S", help="stop when the node was silent S seconds")
     parser.add_argument("--plain", action="store_true", help="no ANSI escapes: print frames one after another")
+    add_snapshot_argument(parser)
     add_curve_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..config import load_settings
     from ..operators.monitor import Monitor
-    from ..operators.stream import NodeFollower
+    from ..operators.stream import NodeFollower, snapshot_text
 
-    endpoint = args.endpoint or load_settings(args.config).links.publish_endpoint
+    settings = None if args.endpoint else load_settings(args.config)
+    endpoint = args.endpoint or settings.links.publish_endpoint
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with NodeFollower(endpoint, curve=curve_from_args(args)) as follower:
+    with NodeFollower(endpoint, curve=curve_from_args(args), snapshot=snapshot_from_args(args, settings)) as follower:
         mon = Monitor(follower, out=sys.stdout, refresh_s=args.refresh, ansi=False if args.plain else None,
                       max_rows=args.rows, png=args.png, png_every_s=args.png_every, state_dir=args.state_dir)
         why = mon.run(duration_s=args.duration, until_silent_s=args.until_silent, stop=stop)
     print(f"atr-node monitor: stopped ({why}); {follower.stats.heartbeats} heartbeats, "
-          f"{follower.stats.contacts} contact messages, {follower.stats.bad} bad"
+          f"{follower.stats.contacts} contact messages, {follower.stats.bad} bad; {snapshot_text(follower.stats)}"
           + (f"; {mon.pngs} PNG(s) written to {args.png}" if args.png else "")
           + (f"; PNG problem: {mon.png_error}" if mon.png_error else ""), file=sys.stderr)
     return 0

@@ -8,7 +8,8 @@ options always give the same contacts. Tiles with no usable navigation are dropp
 counted by reason in the end-of-run line, the heartbeat's tiles_dropped and --summary. XTF
 positions in projected metres (NavUnits 0) need --crs (e.g. --crs EPSG:32610): without it
 such a file fails at once. Contacts and heartbeats are published on ZeroMQ as
-in ICD section 3; --contacts-out writes the final state of every contact as JSON lines.
+in ICD section 3, with the snapshot endpoint for late joiners (ICD v1.1; --snapshot, by default
+the port after --publish); --contacts-out writes the final state of every contact as JSON lines.
 
 With --state-dir, the node snapshots there as it goes; run the same command again after a
 crash (even SIGKILL) and it resumes from the last snapshot and ends with the same contacts.
@@ -25,6 +26,7 @@ import itertools
 import json
 import logging
 import sys
+import threading
 import time
 
 from ..config import load_settings
@@ -43,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="replay speed: a factor of the recorded pace (1 = real time) or max (default: max)")
     parser.add_argument("--publish", metavar="ENDPOINT",
                         help="ZeroMQ PUB endpoint (default: links.publish_endpoint; 'none' = do not publish)")
+    parser.add_argument("--snapshot", metavar="ENDPOINT",
+                        help="snapshot endpoint for late joiners, ICD v1.1 (default: the port after --publish "
+                             "when given, else links.snapshot_endpoint; 'none' = off)")
     parser.add_argument("--contacts-out", metavar="FILE", help="write the final contacts as JSON lines")
     parser.add_argument("--detections-out", metavar="FILE",
                         help="write every detection fused (detector, leg, position, gamma, confidence) as JSON lines")
@@ -83,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
     from hw.replay import IterLink, Paced
 
     from ..node.service import NodeService, open_recording, write_contacts, write_detections
+    from ..node.snapshot_endpoint import node_snapshot_endpoint
 
     settings = load_settings(args.config)
     speed = _speed(args.speed)
@@ -92,17 +98,21 @@ def run(args: argparse.Namespace) -> int:
     model, online = build_model(settings, args.model, args.online_calibration, deterministic=True)
     publish = args.publish if args.publish is not None else settings.links.publish_endpoint
     publish = None if publish in ("", "none") else publish
+    snapshot, snapshot_setting = node_snapshot_endpoint(settings, publish_arg=args.publish,
+                                                        snapshot_arg=getattr(args, "snapshot", None))
     service = NodeService(settings, model=model, mode="replay", workers=args.workers, online=online,
-                          publish=publish, state_dir=args.state_dir, source_name=str(args.log))
+                          publish=publish, state_dir=args.state_dir, source_name=str(args.log),
+                          snapshot=snapshot, snapshot_setting=snapshot_setting)
     service.install_signal_handlers()
     t0 = time.monotonic()
+    progress = None
     try:
         skip = service.resume()
         records = itertools.islice(recording, skip, None)
         source = IterLink(records, name=str(args.log))
         link = Paced(source, speed) if speed is not None else source
         progress = _Progress(service, quiet=args.quiet or not sys.stderr.isatty())
-        ended = service.run(progress.wrap(link), start=skip)
+        ended = service.run(link, start=skip)
         progress.done()
         wall = time.monotonic() - t0
         contacts = service.pipeline.contacts
@@ -122,6 +132,8 @@ def run(args: argparse.Namespace) -> int:
               f"{summary['mpx_per_s']} Mpx/s over {wall:.1f} s; {summary['model']['short']}", file=sys.stderr)
         return 0 if ended else 130
     finally:
+        if progress is not None:
+            progress.done()
         service.close()
 
 
@@ -133,25 +145,45 @@ def dropped_text(summary: dict) -> str:
 
 
 class _Progress:
-    """A one-line progress report on stderr (records, tiles, contacts, rate)."""
+    """A one-line progress report on stderr (records, tiles, contacts, rate), refreshed twice a
+    second by a thread, so it keeps moving while the node waits for the on-line calibration
+    (``calibrating on 8 tiles: waiting for the model, 12 s``) instead of looking hung."""
 
     def __init__(self, service, *, quiet: bool) -> None:
         self.service, self.quiet = service, quiet
-        self._last = 0.0
         self._t0 = time.monotonic()
+        self._stop = threading.Event()
+        self._thread = None
+        if not quiet:
+            self._thread = threading.Thread(target=self._loop, name="atr-progress", daemon=True)
+            self._thread.start()
 
-    def wrap(self, records):
-        for rec in records:
-            yield rec
-            now = time.monotonic()
-            if not self.quiet and now - self._last > 0.5:
-                self._last = now
-                st = self.service.pipeline.stats
-                mpx = st.pixels / 1e6 / max(now - self._t0, 1e-9)
-                sys.stderr.write(f"\r  {st.records} records, {st.tiles_in} tiles, "
-                                 f"{len(self.service.pipeline.contacts)} contacts, {mpx:.1f} Mpx/s   ")
-                sys.stderr.flush()
+    def line(self) -> str:
+        now = time.monotonic()
+        st = self.service.pipeline.stats
+        online = self.service.pipeline.online
+        since = getattr(online, "waiting_since", None) if online is not None else None
+        if since is not None:
+            return (f"calibrating on {online.offered} tile(s): waiting for the on-line model, "
+                    f"{now - since:.0f} s ({st.tiles_in} tiles in)")
+        mpx = st.pixels / 1e6 / max(now - self._t0, 1e-9)
+        return (f"{st.records} records, {st.tiles_in} tiles, {len(self.service.pipeline.contacts)} contacts, "
+                f"{mpx:.1f} Mpx/s")
+
+    def _loop(self) -> None:
+        while not self._stop.wait(0.5):
+            try:
+                text = self.line()
+            except Exception:  # a read racing the node's own update: skip this refresh
+                continue
+            sys.stderr.write(f"\r  {text:<90}")
+            sys.stderr.flush()
 
     def done(self) -> None:
-        if not self.quiet:
+        """Stop the refresh and end the line (idempotent)."""
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
             sys.stderr.write("\n")

@@ -53,13 +53,15 @@ def run(args: argparse.Namespace) -> int:
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     recording = rec_dir / f"atr-{stamp}.atrlog"
     service = NodeService(settings, model=model, mode="live", workers=1, online=calibrator,
-                          publish=settings.links.publish_endpoint, state_dir=state_dir, source_name=str(recording))
+                          publish=settings.links.publish_endpoint, state_dir=state_dir, source_name=str(recording),
+                          snapshot=settings.links.snapshot_endpoint or None)
     service.install_signal_handlers()
     try:
         # catch up: the previous recording past the snapshot (its source), without re-recording
         meta_folder = node_state.read_current(state_dir)
         if meta_folder is not None:
             meta = node_state.load(state_dir, service.pipeline)
+            service.sync_contact_view()  # late joiners get the restored contacts, then the replayed ones
             prev = Path(meta.get("source", ""))
             if prev.is_file():
                 n = 0

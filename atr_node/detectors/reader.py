@@ -113,8 +113,12 @@ def read_scores(sat: SummedAreaTables, geom: WindowGeometry, names: tuple[str, .
     area = {"E": np.int32(geom.length_px * geom.echo_px),
             "S": (geom.length_px * geom.shadow_px[js]).astype(np.int32),
             "C": ((geom.ctx_row1 - geom.ctx_row0) * (geom.ctx_col1 - geom.ctx_col0)[js]).astype(np.int32)}
-    # An integer count n is at least frac * area exactly when n >= ceil(frac * area).
-    need = {w: np.ceil(detectors.min_valid_fraction * a - 1e-9).astype(np.int32) for w, a in area.items()}
+    # An integer count n is at least frac * area exactly when n >= ceil(frac * area). The echo
+    # and shadow zones need more of their pixels (min_valid_fraction_zones): half an echo zone
+    # at a no-data edge (the first-return band, the swath's end) measures the edge, not a target.
+    zones = max(detectors.min_valid_fraction_zones, detectors.min_valid_fraction)
+    frac = {"E": zones, "S": zones, "C": detectors.min_valid_fraction}
+    need = {w: np.ceil(frac[w] * a - 1e-9).astype(np.int32) for w, a in area.items()}
     rows_dec = -(-n_out // step)
     # The maps live in the workspace (no page faults on fresh memory from tile to tile): with a
     # caller's workspace they are valid until its next call.

@@ -20,7 +20,7 @@ look at before believing a count.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -41,16 +41,21 @@ class SidePings:
     lon_deg: np.ndarray
     heading_deg: np.ndarray
     altitude_m: np.ndarray
+    band_m: np.ndarray | None = None
+    """First-return band of each ping in slant metres (None: the caller's one band)."""
 
     @classmethod
-    def from_tiles(cls, tiles: Iterable[Tile], side: str) -> "SidePings":
+    def from_tiles(cls, tiles: Iterable[Tile], side: str, *, band_m: Callable[[Tile], float] | None = None
+                   ) -> "SidePings":
         """Pings of ``side`` from a recording's tiles (tiles without nav count as pings with
-        NaN nav, so ping numbers stay those of the file)."""
-        parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "lat", "lon", "hdg", "alt")}
+        NaN nav, so ping numbers stay those of the file); ``band_m(tile)``, if given, is the
+        first-return band the node gave each tile."""
+        parts: dict[str, list[np.ndarray]] = {k: [] for k in ("t", "lat", "lon", "hdg", "alt", "band")}
         for t in tiles:
             if t.side != side:
                 continue
             parts["t"].append(np.asarray(t.ping_time, dtype=np.float64))
+            parts["band"].append(np.full(t.rows, band_m(t) if band_m is not None and t.nav is not None else np.nan))
             if t.nav is None:
                 nan = np.full(t.rows, np.nan)
                 for k in ("lat", "lon", "hdg", "alt"):
@@ -61,7 +66,8 @@ class SidePings:
                 parts["hdg"].append(t.nav.heading_deg)
                 parts["alt"].append(t.nav.altitude_m)
         cat = {k: np.concatenate(v).astype(np.float64) if v else np.zeros(0) for k, v in parts.items()}
-        return cls(side, cat["t"], cat["lat"], cat["lon"], cat["hdg"], cat["alt"])
+        return cls(side, cat["t"], cat["lat"], cat["lon"], cat["hdg"], cat["alt"],
+                   cat["band"] if band_m is not None else None)
 
     def __len__(self) -> int:
         return int(self.ping_time.size)
@@ -124,7 +130,8 @@ def locate_contacts(pings: Iterable[SidePings], contacts: Iterable[dict], frame:
     frame
         Any metric frame near the recording (the offsets are formed in it).
     band_m
-        Width of the first-return band in slant metres, for :func:`zone_of`.
+        Width of the first-return band in slant metres, for :func:`zone_of`, where the pings
+        carry none of their own (:attr:`SidePings.band_m`).
     max_along_m
         A contact farther than this along-track from every ping's line (before the first ping,
         after the last, or off a gap) is not placed.
@@ -154,8 +161,9 @@ def locate_contacts(pings: Iterable[SidePings], contacts: Iterable[dict], frame:
         off, p, i, g = best
         h = float(p.altitude_m[i])
         r = float(np.hypot(g, h)) if np.isfinite(h) else g
+        band = float(p.band_m[i]) if p.band_m is not None else band_m
         out.append(ContactPlace(id=int(c.get("id", -1)), side=p.side, ping=i, ground_range_m=g, slant_range_m=r,
-                                altitude_m=h, along_offset_m=off, zone=zone_of(r, h, band_m)))
+                                altitude_m=h, along_offset_m=off, zone=zone_of(r, h, band)))
     return out
 
 
@@ -176,10 +184,12 @@ def slant_waterfall(tiles: Iterable[Tile], side: str) -> tuple[np.ndarray, float
     return out, r0, dr
 
 
-def draw_waterfall(tiles: list[Tile], places: list[ContactPlace], out_png: str, *, title: str,
-                   band_m: float = 0.0, contacts: dict[int, dict] | None = None, marks=(), dpi: int = 100) -> None:
+def draw_waterfall(tiles: list[Tile], side_pings: list[SidePings], places: list[ContactPlace], out_png: str, *,
+                   title: str, band_m: float = 0.0, contacts: dict[int, dict] | None = None, marks=(),
+                   dpi: int = 100) -> None:
     """The slant-range waterfall of both sides (port mirrored left of the nadir), the node's
-    altitude (dashed) and first-return band (dotted), and each contact at its (ping, slant range):
+    altitude (dashed) and first-return band (dotted; ``side_pings``' own, else ``band_m``), and
+    each contact at its (ping, slant range):
     a cross, labelled with its id (and Bel when ``contacts`` gives it). ``marks`` are
     (side, ping, slant_range_m, label) drawn as circles (objects read by eye)."""
     import matplotlib
@@ -202,14 +212,15 @@ def draw_waterfall(tiles: list[Tile], places: list[ContactPlace], out_png: str, 
         show = np.log10(np.where(img > 0, img, np.nan))
         ax.imshow(show[:, ::-1] if sign < 0 else show, cmap=cmap, vmin=lo, vmax=hi, aspect="auto", extent=ext,
                   interpolation="nearest")
-    pings = SidePings.from_tiles(tiles, "stbd" if stbd.size else "port")
-    y = np.arange(len(pings))
-    for sign in (-1, 1):
+    for pings in side_pings:
+        sign = -1 if pings.side == "port" else 1
+        y = np.arange(len(pings))
         ax.plot(sign * pings.altitude_m, y, "--", color="cyan", lw=0.8,
                 label="altitude used (first return)" if sign > 0 else None)
-        if band_m > 0:
-            ax.plot(sign * (pings.altitude_m + band_m), y, ":", color="cyan", lw=0.8,
-                    label=f"end of first-return band (+{band_m:g} m)" if sign > 0 else None)
+        band = pings.band_m if pings.band_m is not None else np.full(len(pings), band_m)
+        if np.nanmax(band, initial=0.0) > 0:
+            ax.plot(sign * (pings.altitude_m + band), y, ":", color="cyan", lw=0.8,
+                    label="end of the first-return band" if sign > 0 else None)
     for side, ping, r, label in marks:
         x = -r if side == "port" else r
         ax.plot([x], [ping], "o", ms=18, mfc="none", mec="lime", mew=1.5)

@@ -52,7 +52,8 @@ from scipy import ndimage as ndi
 
 from ..records.tile import Tile
 
-__all__ = ["BottomTrack", "bottom_altitude_m", "first_return_m", "ringing_end_m", "track_bottom"]
+__all__ = ["BottomTrack", "bottom_altitude_m", "first_return_length_m", "first_return_m", "ringing_end_m",
+           "track_bottom"]
 
 
 @dataclass(frozen=True)
@@ -129,7 +130,7 @@ def _side_scores(tile: Tile, k: int, ring_end_m: float, bright_penalty: float) -
 def track_bottom(port: Tile | None, stbd: Tile | None, *, prior_m: float | None = None,
                  prior: BottomTrack | None = None, window_m: float = 0.3, jump_penalty: float = 2.0,
                  bright_penalty: float = 2.0, min_rise: float = np.log(3.0), min_altitude_m: float = 0.0,
-                 envelope_s: float = 4.0) -> BottomTrack:
+                 envelope_s: float = 4.0, min_dip_m: float = 0.2) -> BottomTrack:
     """First bottom return per ping from one or both sides of a block of slant pings.
 
     Parameters
@@ -160,6 +161,10 @@ def track_bottom(port: Tile | None, stbd: Tile | None, *, prior_m: float | None 
         Length (seconds of pings, from the tiles' ``ping_time``) of the along-track grey
         closing: early returns shorter than this are filled to the seabed's later return
         (module docstring); 0 turns it off.
+    min_dip_m
+        Only dips that the closing raises by more than this somewhere are filled (the whole
+        dip then): the bottom of a smooth real valley of the vehicle's altitude (2.5 to 5.5 m
+        and back over 30 s: 0.1 m under a 4 s closing) and one-sample jitter stay as tracked.
 
     Returns
     -------
@@ -217,8 +222,8 @@ def track_bottom(port: Tile | None, stbd: Tile | None, *, prior_m: float | None 
     w = _envelope_pings(t0.ping_time, envelope_s)
     if w > 1:
         # the closing returns values of the track itself, so every ping stays on a state
-        path = np.clip(np.searchsorted(ranges[states], _close_dips(raw, w, history) - 0.5 * t0.dr_m), 0,
-                       states.size - 1)
+        path = np.clip(np.searchsorted(ranges[states], _close_dips(raw, w, history, min_dip_m)
+                                       - 0.5 * t0.dr_m), 0, states.size - 1)
     found = strong[np.arange(rows), path]
     return BottomTrack(ranges[states[path]].astype(np.float64), found, ring_m, raw)
 
@@ -233,20 +238,30 @@ def _envelope_pings(ping_time: np.ndarray, envelope_s: float) -> int:
     return int(round(envelope_s / dt)) | 1
 
 
-def _close_dips(track_m: np.ndarray, w: int, history_m: np.ndarray | None) -> np.ndarray:
-    """Grey closing of ``track_m`` over ``w`` pings: dips shorter than ``w`` are filled.
+def _close_dips(track_m: np.ndarray, w: int, history_m: np.ndarray | None, min_dip_m: float = 0.0) -> np.ndarray:
+    """Grey closing of ``track_m`` over ``w`` pings: dips shorter than ``w`` are filled, those
+    that it raises by more than ``min_dip_m`` somewhere (each run of raised pings as a whole).
 
-    The pings before the block (``history_m``, up to ``w`` of them) extend it at the start;
-    without them, and at the end, the first/last value is repeated (``mode="nearest"``), which
+    The pings before the block (``history_m``, up to ``w - 1`` of them) extend it at the start;
+    beyond them, and at the end, the first/last value is repeated over ``w - 1`` pings, which
     leaves a monotonic track unchanged (no lag, no bias on a real change of altitude) and keeps
-    a dip still under way at the end.
+    a dip still under way at the end. (``mode="nearest"`` of scipy would repeat the edge of the
+    dilated track instead, which holds a descent at its value half a window earlier.)
     """
+    pad = w - 1  # the erosion reads the dilation half a window on, which reads half a window on
     head = np.zeros(0)
     if history_m is not None:
-        head = np.asarray(history_m, dtype=np.float64)[-w:]
-        head = head[np.isfinite(head)]
-    x = np.concatenate([head, track_m])
-    return ndi.grey_closing(x, size=w, mode="nearest")[head.size:]
+        head = np.asarray(history_m, dtype=np.float64)
+        head = head[np.isfinite(head)][-pad:]
+    x = np.concatenate([np.full(pad - head.size, (head[0] if head.size else track_m[0])), head, track_m,
+                        np.full(pad, track_m[-1])])
+    closed = ndi.grey_closing(x, size=w, mode="nearest")[pad:pad + track_m.size]
+    raised = closed - track_m
+    runs, n = ndi.label(raised > 0)
+    if n == 0:
+        return closed
+    deep = np.concatenate([[False], np.asarray(ndi.maximum(raised, runs, np.arange(1, n + 1))) > min_dip_m])
+    return np.where(deep[runs], closed, track_m)
 
 
 def first_return_m(tile: Tile, **kwargs) -> np.ndarray:
@@ -265,3 +280,59 @@ def bottom_altitude_m(port: Tile | None, stbd: Tile | None, **kwargs) -> np.ndar
     """Sonar altitude per ping from both sides (:func:`track_bottom`); NaN where not found."""
     track = track_bottom(port, stbd, **kwargs)
     return np.where(track.found, track.altitude_m, np.nan)
+
+
+def first_return_length_m(tile: Tile, altitude_m: np.ndarray, *, level: float = 0.7, max_m: float = 2.5,
+                          plateau_m: float = 1.0, min_rows: int = 16) -> float:
+    """Slant length of the first bottom return's rise to the seabed's level, measured on a tile.
+
+    Right after the first return (R = H) the seabed is not at once as bright as beyond it: the
+    Iver2 file's return climbs from 0.07 to 0.7 of the seabed level over 0.6-1.8 m of slant
+    range (the vertical beam pattern: near the nadir the transducers look away from the
+    seabed), the river file's port side over 0.1-0.8 m, its starboard side in one sample. On
+    the ground axis that ramp is a dark strip next to the nadir; the per-range background b(j)
+    cannot normalise it when the altitude changes along the tile (it moves across columns), so
+    its far edge looks like a shadow's to the detectors.
+
+    Per tile: every ping's pixels at ``R - H = x`` (nearest sample), the median over the pings
+    at each ``x``; the seabed level is that profile's median over ``[max_m, max_m + plateau_m]``;
+    the length is the first ``x >= 0`` where the profile reaches ``level`` times it.
+
+    Parameters
+    ----------
+    tile
+        A slant-range tile.
+    altitude_m
+        (rows,) the altitude used for its pings (the first bottom return).
+    level
+        Fraction of the seabed level that ends the rise.
+    max_m
+        Longest length reported (also where the seabed level is measured from).
+    plateau_m
+        Slant extent of the seabed-level window.
+    min_rows
+        Fewer pings with data than this: NaN (not measured).
+
+    Returns
+    -------
+    float
+        Metres of slant range in ``[0, max_m]``; NaN when the tile has too few pings with data
+        there, or no seabed level (all no data or zero).
+    """
+    if not tile.slant:
+        raise ValueError(f"{tile.ident}: the first return's length needs slant-range pings")
+    alt = np.broadcast_to(np.asarray(altitude_m, dtype=np.float64), (tile.rows,))
+    xs = np.arange(0.0, max_m + plateau_m + 0.5 * tile.dr_m, tile.dr_m)
+    col = np.rint((alt[:, None] + xs[None, :] - tile.range0_m) / tile.dr_m)
+    inside = np.isfinite(col) & (col >= 0) & (col <= tile.cols - 1)
+    idx = np.where(inside, col, 0).astype(np.int64)
+    px = np.take_along_axis(tile.pixels.astype(np.float64), idx, axis=1)
+    px[~inside] = np.nan
+    if int(np.isfinite(px).all(axis=1).sum()) < min_rows:
+        return float("nan")
+    prof = np.nanmedian(px, axis=0)
+    seabed = float(np.nanmedian(prof[xs >= max_m - 1e-9]))
+    if not (np.isfinite(seabed) and seabed > 0):
+        return float("nan")
+    up = np.flatnonzero(prof >= level * seabed)
+    return float(min(xs[up[0]], max_m)) if up.size else float(max_m)

@@ -43,6 +43,8 @@ class NavMergeStats:
     reasons: dict[str, int] = field(default_factory=dict)
     dropped: dict[str, int] = field(default_factory=dict)
     """Tiles dropped here, by reason (:data:`NO_NAV`, :data:`AXIS_TOO_LONG`)."""
+    first_return_band_m: dict[str, int] = field(default_factory=dict)
+    """Slant tiles by the first-return band they were given (metres, to 0.1 m)."""
 
 
 NO_NAV = "no usable nav"
@@ -68,13 +70,21 @@ class NavMerger:
     first_return_band_m
         Slant metres after the first bottom return (R = altitude) that become no data in the
         ground-range tile (:meth:`Tile.ground_range`): the bright nadir return and its ringing
-        are not seabed evidence (``sensor.first_return_band_m``).
+        are not seabed evidence (``sensor.first_return_band_m``). The least band.
+    first_return_level, first_return_band_max_m
+        With ``first_return_level`` > 0 the band of a slant tile is the longer of
+        ``first_return_band_m`` and the rise of its first return to that fraction of the seabed
+        level, measured on the tile (:func:`~atr_node.io.xtf_bottom.first_return_length_m`,
+        at most ``first_return_band_max_m``; per side, the side's last measured value for a
+        tile too short to measure): ``sensor.first_return_level`` and
+        ``sensor.first_return_band_max_m``. Counted in ``stats.first_return_band_m``.
     on_drop
         Called with the tile and the reason of every tile dropped here.
     """
 
     def __init__(self, track: NavTrack, *, max_gap_s: float = 2.0, max_speed_m_s: float = 15.0,
                  default_altitude_m: float = 14.0, max_held: int = 64, first_return_band_m: float = 0.0,
+                 first_return_level: float = 0.0, first_return_band_max_m: float = 2.5,
                  on_drop: Callable[[Tile, str], None] | None = None) -> None:
         self.on_drop = on_drop
         self.track = track
@@ -82,6 +92,9 @@ class NavMerger:
         self.max_speed_m_s = float(max_speed_m_s)
         self.default_altitude_m = float(default_altitude_m)
         self.first_return_band_m = float(first_return_band_m)
+        self.first_return_level = float(first_return_level)
+        self.first_return_band_max_m = float(first_return_band_max_m)
+        self._band_by_side: dict[str, float] = {}
         self.max_held = int(max_held)
         self._held: deque[Tile] = deque()
         self.stats = NavMergeStats()
@@ -181,7 +194,7 @@ class NavMerger:
             cols = int(math.floor((tile.range0_m + tile.dr_m * (tile.cols - 1)) / tile.dr_m + 1e-9)) + 1
             # water column (R < H) and first-return band (H <= R < H + band) become no data
             tile = tile.with_nav(nav).ground_range(alt, range0_m=0.0, cols=cols,
-                                                   first_return_band_m=self.first_return_band_m)
+                                                   first_return_band_m=self._band_m(tile, alt))
         else:
             tile = tile.with_nav(nav)
         if not valid.all():
@@ -189,6 +202,22 @@ class NavMerger:
             px[~valid] = np.nan
             tile = tile.replace(pixels=px)
         return tile
+
+
+    def _band_m(self, tile: Tile, altitude_m: np.ndarray) -> float:
+        """The first-return band of a slant tile (``first_return_level`` in the class docstring)."""
+        band = self.first_return_band_m
+        if self.first_return_level > 0:
+            from ..io.xtf_bottom import first_return_length_m
+
+            rise = first_return_length_m(tile, altitude_m, level=self.first_return_level,
+                                         max_m=self.first_return_band_max_m)
+            if math.isfinite(rise):
+                self._band_by_side[tile.side] = rise
+            band = max(band, self._band_by_side.get(tile.side, band))
+        key = f"{band:.1f}"
+        self.stats.first_return_band_m[key] = self.stats.first_return_band_m.get(key, 0) + 1
+        return band
 
 
 def _fill_invalid(nav, valid: np.ndarray, default_altitude_m: float):

@@ -177,10 +177,16 @@ class Pipeline:
         self.track = NavTrack(max_gap_s=settings.node.nav_max_gap_s, default_altitude_m=settings.sensor.altitude_m)
         self.merger = NavMerger(self.track, max_gap_s=settings.node.nav_max_gap_s,
                                 default_altitude_m=settings.sensor.altitude_m, on_drop=self._on_nav_drop,
-                                first_return_band_m=settings.sensor.first_return_band_m)
+                                first_return_band_m=settings.sensor.first_return_band_m,
+                                first_return_level=settings.sensor.first_return_level,
+                                first_return_band_max_m=settings.sensor.first_return_band_max_m)
         self.strips: StripAssembler | None = None
         self.frame: MissionFrame | None = None
         self.tracker: ContactTracker | None = None
+        self.contact_seq = 0
+        """(ICD v1.1) ``seq`` of the last contact message emitted: +1 per message, kept in snapshots."""
+        self.contact_seq_of: dict[int, int] = {}
+        """Contact id -> ``seq`` of its last message (``--contacts-out`` carries it)."""
         self.gate_m = association_gate_m(settings.fusion, settings.template)
         self.grid = EvidenceGrid(settings.fusion, gate_m=self.gate_m, detectors=self.enabled)
         self._bg: dict[tuple[int, str], tuple[BackgroundTracker, BackgroundTracker]] = {}
@@ -376,10 +382,19 @@ class Pipeline:
 
     @property
     def contacts(self) -> list[dict[str, Any]]:
-        """The final (latest) message of every contact ever published."""
+        """The final (latest) message of every contact ever published, with its ``seq``
+        (none for a contact of a snapshot written before ICD v1.1)."""
         if self.tracker is None:
             return []
-        return [c.to_message() for c in sorted(self.tracker.history.values(), key=lambda c: c.id)]
+        return [self._with_seq(c.to_message()) for c in sorted(self.tracker.history.values(), key=lambda c: c.id)]
+
+    def live_contacts(self) -> list[dict[str, Any]]:
+        """The last message of every live (not withdrawn) contact: the snapshot endpoint's list."""
+        return [m for m in self.contacts if m["state"] != "withdrawn"]
+
+    def _with_seq(self, m: dict[str, Any]) -> dict[str, Any]:
+        seq = self.contact_seq_of.get(m["id"])
+        return m if seq is None else {**m, "seq": seq}
 
     # -- stages ---------------------------------------------------------------------------
     _last_t = 0.0
@@ -664,4 +679,6 @@ class Pipeline:
         if self.tracker is None:
             return
         for c in self.tracker.update(self.grid, t):
-            self.emit(c.to_message())
+            self.contact_seq += 1  # ICD v1.1: per node, +1 for every contact message published
+            self.contact_seq_of[c.id] = self.contact_seq
+            self.emit({**c.to_message(), "seq": self.contact_seq})

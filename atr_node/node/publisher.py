@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, Mapping
 
 import zmq
 
+from ..errors import AtrError
 from . import wire
 
 if TYPE_CHECKING:
@@ -34,10 +35,18 @@ class Publisher:
             self._sock.curve_secretkey = curve_secret_key
             self._sock.curve_publickey = curve_public_key
             self._sock.curve_server = True
-        if bind:
-            self._sock.bind(endpoint)
-        else:
-            self._sock.connect(endpoint)
+        try:
+            if bind:
+                self._sock.bind(endpoint)
+            else:
+                self._sock.connect(endpoint)
+        except zmq.ZMQError as exc:  # a port in use, a bad endpoint: one line, not a traceback
+            self._sock.close()
+            if not bind:
+                raise AtrError(f"cannot connect the contact PUB socket to {endpoint!r}: {exc}") from None
+            from .snapshot_endpoint import bind_error
+
+            raise bind_error("contact PUB socket", endpoint, exc, "links.publish_endpoint (replay: --publish)") from None
         self.endpoint = self._sock.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
         self._lock = threading.Lock()
         self.sent = {"contact": 0, "heartbeat": 0}

@@ -25,12 +25,14 @@ from typing import Any, Callable, Iterable, Iterator
 
 from ..calibration.model import PerformanceModel
 from ..config import Settings
+from ..errors import AtrError
 from ..io.atrlog import LogRecord
 from . import state as node_state
 from . import wire
 from .pipeline import Pipeline
 from .publisher import Publisher
 from .sdnotify import Notifier
+from .snapshot_endpoint import ContactView, SnapshotServer
 
 log = logging.getLogger(__name__)
 
@@ -48,16 +50,31 @@ class NodeService:
         Where snapshots go (None: no snapshots, no resume).
     on_contact
         Also called with every contact message (for ``--contacts-out`` and tests).
+    snapshot
+        (ICD v1.1) ZeroMQ endpoint to bind the snapshot endpoint for late joiners to
+        (:mod:`~atr_node.node.snapshot_endpoint`), or None for none; only with ``publish``.
+    snapshot_setting
+        The option or key that set ``snapshot``, named if it cannot be bound.
     """
 
     def __init__(self, settings: Settings, *, model: PerformanceModel, mode: str = "replay", workers: int = 1,
                  online: Any = None, publish: str | None = None, state_dir: str | Path | None = None,
-                 on_contact: Callable[[dict], None] | None = None, source_name: str = "") -> None:
+                 on_contact: Callable[[dict], None] | None = None, source_name: str = "",
+                 snapshot: str | None = None, snapshot_setting: str = "links.snapshot_endpoint") -> None:
         self.settings = settings
         from ..security import curve_from_settings
 
         self.curve = curve_from_settings(settings)
         self.publisher = Publisher(publish, curve=self.curve) if publish else None
+        self.contact_view = ContactView()
+        self.snapshot_server: SnapshotServer | None = None
+        if self.publisher is not None and snapshot:
+            try:
+                self.snapshot_server = SnapshotServer(snapshot, self.contact_view, curve=self.curve,
+                                                      setting=snapshot_setting)
+            except AtrError:
+                self.publisher.close()
+                raise
         self.on_contact = on_contact
         self.pipeline = Pipeline(settings, model=model, emit=self._emit, workers=workers, mode=mode, online=online)
         self._stop = threading.Event()
@@ -95,6 +112,7 @@ class NodeService:
                         self.source_name)
             return 0
         self.position = self.resumed_from = int(meta["position"])
+        self.sync_contact_view()
         if self.exchange is not None and not self.exchange.restore(node_state.read_current(self.state_dir)):
             log.warning("evidence exchange off after this resume: the snapshot holds no usable delta ledger")
             self.exchange.close()
@@ -103,6 +121,11 @@ class NodeService:
         log.warning("resumed from snapshot at input record %d (%d tiles in)", self.position,
                     self.pipeline.stats.tiles_in)
         return self.position
+
+    def sync_contact_view(self) -> None:
+        """After the pipeline's state was restored: the snapshot endpoint answers with the
+        restored live contacts and last seq (until the next message)."""
+        self.contact_view.reset(self.pipeline.contact_seq, self.pipeline.live_contacts())
 
     def install_signal_handlers(self) -> None:
         def stop(signum, _frame):
@@ -215,12 +238,17 @@ class NodeService:
         self.pipeline.close()
         if self.exchange is not None:
             self.exchange.close()
+        if self.snapshot_server is not None:
+            self.snapshot_server.close()
         if self.publisher is not None:
             self.publisher.close()
         self.notifier.close()
 
     # -- outputs -----------------------------------------------------------------------------
     def _emit(self, msg: dict) -> None:
+        # the view first: a snapshot taken between the two already holds this message, and a
+        # late joiner then drops it from the stream by its seq (and applies it once)
+        self.contact_view.published(msg)
         if self.publisher is not None:
             self.publisher.contact(msg)
         if self.on_contact is not None:
@@ -265,6 +293,10 @@ class NodeService:
                 "navmerge": vars(self.pipeline.merger.stats), "rejections": dict(st.rejections),
                 "snapshots": self.snapshots, "snapshot_failures": self.snapshot_failures,
                 "resumed_from": self.resumed_from, "model": self.pipeline.model_report(),
+                "contact_seq": self.pipeline.contact_seq,
+                "snapshot_endpoint": None if self.snapshot_server is None else {
+                    "endpoint": self.snapshot_server.endpoint, "served": self.snapshot_server.served,
+                    "refused": self.snapshot_server.refused},
                 "exchange": None if self.exchange is None else {**self.exchange.counters, **self.exchange.grid.counters}}
 
 

@@ -6,7 +6,8 @@ A snapshot is a folder ``snap-<n>`` in the node's state directory holding
 - ``node.npz``: strips (pending and context rows), the INS track, background trackers, the
   mission frame, counters, the on-line model if one took over (and how: ``model_use``), the
   tiles a replay holds for the on-line calibration (offered again to the resumed node's
-  calibrator), and ``position``: how many input records the snapshot accounts for;
+  calibrator), the last contact ``seq`` published (ICD v1.1) and each contact's, and
+  ``position``: how many input records the snapshot accounts for;
 
 and the file ``CURRENT`` names the newest complete snapshot. A new snapshot is written to a
 fresh folder, flushed and fsync'ed, and only then does ``CURRENT`` change, by an atomic
@@ -139,6 +140,8 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         "model": p.model.to_dict() if getattr(p, "online", None) is not None else None,
         "online_done": bool(p.online.done) if getattr(p, "online", None) is not None else None,
         "model_use": getattr(p, "model_use", None),
+        # ICD v1.1 contact seq: a resumed node goes on counting, never reusing a seq
+        "contact_seq": int(p.contact_seq), "contact_seq_of": {str(k): int(v) for k, v in p.contact_seq_of.items()},
         "strips": None, "bg": [],
     }
     for k, v in p.track.state().items():
@@ -183,6 +186,8 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     p.stats.drop_reasons = Counter(meta.get("drop_reasons", {}))
     p.stats.rejections = Counter(meta.get("rejections", {}))
     p.model_use = meta.get("model_use")
+    p.contact_seq = int(meta.get("contact_seq", 0))  # 0 and none per contact: a snapshot older than v1.1
+    p.contact_seq_of = {int(k): int(v) for k, v in meta.get("contact_seq_of", {}).items()}
     if meta.get("model") is not None:
         p.model = PerformanceModel.from_dict(meta["model"], where="node snapshot")
         if p.online is not None and meta.get("online_done"):

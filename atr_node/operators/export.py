@@ -12,7 +12,8 @@ Three formats, each carrying every ICD section 3 contact field:
   ``ExtendedData``, ``Point`` ``lon,lat,0``), elements in the schema's order. Opens in
   Google Earth and the usual mission planners (SeeTrack, QGIS, OpenCPN via GPX/KML import).
 - **CSV** (RFC 4180): a header of the ICD fields in ICD order, the optional extent
-  (``length_m``, ``width_m``, ``heading_deg``: empty for a contact without one) and ``time_utc``; list fields
+  (``length_m``, ``width_m``, ``heading_deg``: empty for a contact without one), the v1.1 ``seq``
+  (empty from a v1 node) and ``time_utc``; list fields
   (``detectors``, ``legs``) joined with ``;``. Carries ``lat_deg`` and ``lon_deg``, so the
   evaluation tools read it like a truth file (ICD section 5).
 
@@ -32,7 +33,7 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
 from ..errors import AtrError
-from ..node.wire import CONTACT_OPTIONAL_FIELDS
+from ..node.wire import CONTACT_OPTIONAL_FIELDS, CONTACT_SEQ_FIELDS
 from .book import ICD_FIELDS
 
 FORMATS = ("geojson", "kml", "csv")
@@ -60,11 +61,14 @@ def _ordered(contacts: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
 EXTENT_FIELDS: tuple[str, ...] = tuple(CONTACT_OPTIONAL_FIELDS)
 """(ICD v1.1) An extended object's ``length_m``, ``width_m``, ``heading_deg``: in GeoJSON and
 KML when the contact has them; CSV columns always (empty when it has none)."""
+SEQ_FIELDS: tuple[str, ...] = tuple(CONTACT_SEQ_FIELDS)
+"""(ICD v1.1) The ``seq`` of the contact's last message, handled like the extent (absent from
+a v1 node's contacts)."""
 
 
 def _properties(c: Mapping[str, Any]) -> dict[str, Any]:
     props = {k: c[k] for k in ICD_FIELDS}
-    props.update({k: c[k] for k in EXTENT_FIELDS if c.get(k) is not None})
+    props.update({k: c[k] for k in (*EXTENT_FIELDS, *SEQ_FIELDS) if c.get(k) is not None})
     props["detectors"] = list(props["detectors"])
     props["legs"] = list(props["legs"])
     props["time_utc"] = time_utc(c["t"])
@@ -132,7 +136,7 @@ def to_kml(contacts: Iterable[Mapping[str, Any]], *, name: str = "atr-node conta
 
 # ------------------------------------------------------------------------------- CSV
 def csv_columns() -> list[str]:
-    return [*ICD_FIELDS, *EXTENT_FIELDS, "time_utc"]
+    return [*ICD_FIELDS, *EXTENT_FIELDS, *SEQ_FIELDS, "time_utc"]
 
 
 def to_csv(contacts: Iterable[Mapping[str, Any]]) -> str:

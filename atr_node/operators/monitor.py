@@ -12,13 +12,16 @@ Screen (80 columns or more)::
     atr-node monitor  tcp://127.0.0.1:5560                       2026-11-23 01:02:03 UTC
     node      NOMINAL   up 41.2 s   heartbeat 0.3 s ago
     tiles     in 36  done 36  dropped 0  rejected 0   queue 0   latency p50 8 ms  p99 31 ms
-    received  212 heartbeats, 14 contact messages, 0 bad
+    received  212 heartbeats, 14 contact messages, 0 bad; snapshot: 4 live contacts at seq 9
     contacts  4 live, 1 withdrawn           (sorted by Bel(T))
        id      bel       pl     latitude     longitude  sigma looks  det state detectors  legs    time UTC
        3  0.99756  1.00000   44.080294N     9.850133E   1.5m     1    1 new   smf        0       09:01:46
 
 ``time UTC`` is the time of the evidence behind the contact's last message (the recorded time
 in a replay). A heartbeat older than ``stale_s`` turns the node line into ``NO HEARTBEAT for N s``.
+The ``received`` line ends with how the monitor joined (the node's snapshot, ICD v1.1) when it
+asked for one. A PNG asked with a state directory that holds no snapshot yet shows the contacts
+alone, and says so, until the node writes one.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from pathlib import Path
 from typing import TextIO
 
 from ..errors import AtrError
-from .stream import NodeFollower
+from .stream import NodeFollower, snapshot_text
 
 HOME, CLEAR_EOL, CLEAR_EOS, CLEAR_ALL = "\x1b[H", "\x1b[K", "\x1b[J", "\x1b[2J"
 STALE_S = 3.0
@@ -79,7 +82,8 @@ def render_screen(follower: NodeFollower, *, now: float, wall: float | None = No
                      f"rejected {hb['tiles_rejected']}   queue {hb['queue_depth']}   "
                      f"latency p50 {lat['p50']:.0f} ms  p99 {lat['p99']:.0f} ms")
     lines.append(f"received  {st.heartbeats} heartbeats, {st.contacts} contact messages, {st.bad} bad"
-                 + (f" (last: {st.last_bad})" if st.bad else ""))
+                 + (f" (last: {st.last_bad})" if st.bad else "")
+                 + (f"; {snapshot_text(st)}" if st.snapshot != "off" else ""))
     rows = book.contacts(include_withdrawn=True)
     lines.append(f"contacts  {book.n_live} live, {book.n_withdrawn} withdrawn   (sorted by Bel(T))")
     lines.append(f"{'id':>5} {'bel':>8} {'pl':>8} {'latitude':>12} {'longitude':>13} {'sigma':>6} {'looks':>5} "
@@ -126,6 +130,8 @@ class Monitor:
         self.frames = 0
         self.pngs = 0
         self.png_error = ""
+        self.png_note = ""
+        """Why the last PNG has no belief map under its contacts (empty: it has one, or none was asked)."""
         self._last_draw = -1e9
         self._last_png = -1e9
 
@@ -134,7 +140,10 @@ class Monitor:
         rows = self.max_rows if self.max_rows is not None else max(3, size.lines - 8)
         screen = render_screen(self.follower, now=time.monotonic(), width=size.columns, max_rows=rows)
         if self.png is not None:
-            note = f"png       {self.png_error}" if self.png_error else f"png       {self.png} ({self.pngs} written)"
+            shown = f"{self.png} ({self.pngs} written)"
+            if self.png_note:  # first: a long path must not cut it off
+                shown = f"contacts only, no belief map yet: {shown}"
+            note = f"png       {self.png_error}" if self.png_error else f"png       {shown}"
             screen += "\n" + note[:size.columns]
         if self.ansi:
             body = "".join(line + CLEAR_EOL + "\n" for line in screen.split("\n"))
@@ -151,7 +160,12 @@ class Monitor:
             return None
         from .beliefmap import draw_belief_map, grid_raster, load_state_grid
 
-        raster = grid_raster(load_state_grid(self.state_dir)) if self.state_dir else None
+        raster, self.png_note = None, ""
+        if self.state_dir:
+            try:
+                raster = grid_raster(load_state_grid(self.state_dir))
+            except AtrError as exc:  # no snapshot yet (a node just started): the contacts alone until then
+                self.png_note = f"contacts only, no belief map: {exc}"
         contacts = self.follower.book.contacts(include_withdrawn=True)
         title = f"atr-node {self.follower.endpoint}: {self.follower.book.n_live} live contacts, " \
                 f"{datetime.now(timezone.utc):%H:%M:%S} UTC"

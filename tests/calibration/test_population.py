@@ -35,7 +35,7 @@ def test_weak_population_has_lower_pd_than_the_nominal_one_on_the_same_image(ima
     The thresholds are set on the nominal targets (``threshold_on = "nominal"``), so they do
     not sink to follow the weak targets, and P(y) shows the weak ones' misses."""
     nominal = settings_with(PopulationSettings(mode="fixed"))
-    weak_pop = PopulationSettings(reflectivity_db=(-10.0, -10.0), burial_fraction=(0.5, 0.5), tilt_deg=0.0,
+    weak_pop = PopulationSettings(mode="varied", reflectivity_db=(-10.0, -10.0), burial_fraction=(0.5, 0.5), tilt_deg=0.0,
                                   size_scale=(0.6, 0.6), nominal_fraction=0.35)
     weak = settings_with(weak_pop)
     r_nom = collect_responses(images, settings=nominal, iterations=4, targets_per_image=25, seed=3)
@@ -59,7 +59,7 @@ def test_weak_population_has_lower_pd_than_the_nominal_one_on_the_same_image(ima
 
 
 def test_model_file_records_the_population(images, tmp_path):
-    pop = PopulationSettings(reflectivity_db=(-6.0, 4.0), tilt_deg=15.0)
+    pop = PopulationSettings(mode="varied", reflectivity_db=(-6.0, 4.0), tilt_deg=15.0)
     s = settings_with(pop)
     resp = collect_responses(images, settings=s, iterations=1, targets_per_image=10, seed=0)
     assert set(resp.target_traits) == {"nominal", "reflectivity_db", "height_m"}

@@ -60,7 +60,8 @@ def test_crop_scoring_equals_whole_image_scoring(seabed_image):
     assert resp.n_targets >= 3
     injected, placed = inject_targets(im.pixels, range0_m=im.range0_m, dr_m=im.dr_m, dx_m=im.dx_m,
                                       altitude_m=im.altitude_m, n_targets=6, rng=np.random.default_rng(11),
-                                      sensor=s.sensor, simulation=s.simulation, template=s.template)
+                                      sensor=s.sensor, simulation=s.simulation, template=s.template,
+                                      population=s.calibration.population)
     b, m = column_mean(im.pixels), column_median(im.pixels)
     full = score_maps(injected, range0_m=im.range0_m, dr_m=im.dr_m, dx_m=im.dx_m, altitude_m=im.altitude_m,
                       template=s.template, detectors=s.detectors, background=b, median=m)

@@ -57,6 +57,7 @@ def reference_scores(x: np.ndarray, *, range0_m: float, dr_m: float, dx_m: float
     jj = i_n - np.where(np.isfinite(m), m / b, 1.0)
     seg = segment(x, m)
     w, ln, frac = g["W"], g["L"], detectors.min_valid_fraction
+    zfrac = max(detectors.min_valid_fraction_zones, frac)  # echo and shadow zones
     out = {d: np.full((rows, cols), np.nan) for d in ("mf", "lac", "smf", "z")}
 
     def cut(img, r0, r1, c0, c1):
@@ -73,8 +74,8 @@ def reference_scores(x: np.ndarray, *, range0_m: float, dr_m: float, dx_m: float
             s = g["S"][j]
             cw = g["ctx_w"][j]
             cc0 = j - w - (cw - w - s) // 2
-            e_ok = cut(x, r0, r1, j - w, j).size >= frac * ln * w
-            s_ok = cut(x, r0, r1, j, j + s).size >= frac * ln * s
+            e_ok = cut(x, r0, r1, j - w, j).size >= zfrac * ln * w
+            s_ok = cut(x, r0, r1, j, j + s).size >= zfrac * ln * s
             c_ok = cut(x, cr0, cr1, cc0, cc0 + cw).size >= frac * g["ctx_len"] * cw
             ie, ish = cut(i_n, r0, r1, j - w, j), cut(i_n, r0, r1, j, j + s)
             if s_ok:

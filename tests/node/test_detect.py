@@ -18,7 +18,9 @@ from atr_node.node.detect import DetectJob, detect
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
 from bench_detectors import GEO, TAU, make_tile  # noqa: E402
 
-T, S = TemplateSettings(), DetectorSettings()
+# SPEC 2's half-valid rule for every window, so the hole gives SMF (context window) a coverage
+# of its own, which the sharing test needs (with min_valid_fraction_zones the zones bind first)
+T, S = TemplateSettings(), DetectorSettings(min_valid_fraction_zones=0.5)
 CORE = (20, 220)
 
 

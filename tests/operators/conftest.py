@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -9,6 +10,7 @@ from typing import Any, Callable
 import pytest
 
 from atr_node.calibration.model import PerformanceModel
+from atr_node.errors import AtrError
 from atr_node.io.atrlog import read_atrlog
 from atr_node.node.service import NodeService
 
@@ -26,6 +28,9 @@ class LiveNode:
     endpoint: str
     emitted: list[dict[str, Any]] = field(default_factory=list)
     gate: threading.Event = field(default_factory=threading.Event)
+    paused: threading.Event = field(default_factory=threading.Event)
+    """Set when the node stopped feeding at ``pause_after`` (its contacts so far are published)."""
+    resume_feed: threading.Event = field(default_factory=threading.Event)
     thread: threading.Thread | None = None
 
     def release(self) -> None:
@@ -36,15 +41,49 @@ class LiveNode:
         assert not self.thread.is_alive(), "the node did not finish the mission"
 
 
-def start_node(settings, log_path, *, state_dir=None, before_feed: Callable[[], None] | None = None) -> LiveNode:
+def free_port_pair() -> int:
+    """A port p with p and p + 1 both free now: a PUB endpoint and the snapshot endpoint that
+    clients derive from it (ICD v1.1 defaults: 5560 and 5561)."""
+    for _ in range(50):
+        with socket.socket() as a:
+            a.bind(("127.0.0.1", 0))
+            p = a.getsockname()[1]
+            if p >= 65534:
+                continue
+            with socket.socket() as b:
+                try:
+                    b.bind(("127.0.0.1", p + 1))
+                except OSError:
+                    continue
+                return p
+    raise RuntimeError("no free pair of ports")
+
+
+def start_node(settings, log_path, *, state_dir=None, before_feed: Callable[[], None] | None = None,
+               snapshot: bool = True, pause_after: int | None = None) -> LiveNode:
+    """A node replaying ``log_path`` once released; ``snapshot``: with the ICD v1.1 snapshot
+    endpoint on the port after its PUB port (False: a v1 node); ``pause_after``: it stops
+    feeding after that many records until ``resume_feed`` is set (a client can join mid-run)."""
     emitted: list[dict[str, Any]] = []
-    service = NodeService(settings, model=PerformanceModel.shipped(), mode="replay", workers=0,
-                          publish="tcp://127.0.0.1:*", state_dir=state_dir, on_contact=emitted.append)
+    for attempt in range(5):
+        port = free_port_pair()
+        try:
+            service = NodeService(settings, model=PerformanceModel.shipped(), mode="replay", workers=0,
+                                  publish=f"tcp://127.0.0.1:{port}", state_dir=state_dir, on_contact=emitted.append,
+                                  snapshot=f"tcp://127.0.0.1:{port + 1}" if snapshot else None)
+            break
+        except AtrError:  # taken between the check and the bind: another pair
+            if attempt == 4:
+                raise
     node = LiveNode(service, service.publisher.endpoint, emitted)
 
     def records():
         node.gate.wait(60.0)  # heartbeats already flow (run() started them)
-        yield from read_atrlog(log_path)
+        for i, rec in enumerate(read_atrlog(log_path)):
+            if i == pause_after:
+                node.paused.set()
+                node.resume_feed.wait(60.0)
+            yield rec
 
     def main():
         try:
@@ -70,6 +109,7 @@ def live_node(mission, tmp_path):
     yield make
     for n in nodes:
         n.release()
+        n.resume_feed.set()
         n.service.stop()
         if n.thread is not None:
             n.thread.join(30)

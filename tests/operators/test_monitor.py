@@ -234,3 +234,17 @@ def test_following_a_curve_secured_node(tmp_path):
         pub.close()
     with pytest.raises(AtrError, match="go together"):
         curve_from_args(argparse.Namespace(curve_key=str(tool_sec), node_key=None))
+
+
+def test_png_before_the_nodes_first_snapshot_draws_the_contacts_and_says_why(pub_and_follower, tmp_path):
+    pub, fol = pub_and_follower
+    pub.contact(contact(5, state="new"))
+    drain(fol, fol.stats.heartbeats + 1)
+    empty = tmp_path / "state"
+    empty.mkdir()  # a node's --state-dir before its first snapshot
+    out = io.StringIO()
+    mon = Monitor(fol, out=out, ansi=False, png=tmp_path / "b.png", png_every_s=0.1, state_dir=empty)
+    mon.run(duration_s=0.3)
+    assert mon.pngs >= 1 and mon.png_error == "" and mpimg.imread(tmp_path / "b.png").ndim == 3
+    assert "contacts only, no belief map" in mon.png_note and "no snapshot yet" in mon.png_note
+    assert "contacts only, no belief map" in out.getvalue().split("\n\n")[-2]

@@ -4,7 +4,6 @@ first return (real files: docs/xtf.md; eye-read altitudes: data README and the w
 from __future__ import annotations
 
 import json
-import math
 import subprocess
 import sys
 
@@ -12,10 +11,14 @@ import numpy as np
 import pytest
 
 from atr_node.config import Settings
+from atr_node.evaluation.waterfall import SidePings, locate_contacts
+from atr_node.geo import MissionFrame
 from atr_node.io.atrlog import LogRecord
 from atr_node.io.xtf import XtfReader
 from atr_node.io.xtf_bottom import track_bottom
 from atr_node.io.xtf_write import write_xtf
+from atr_node.node.navmerge import NavMerger
+from atr_node.records.nav import NavTrack
 from atr_node.records.tile import Tile, TileNav
 
 from .conftest import make_tile
@@ -109,6 +112,33 @@ def test_tracker_follows_a_known_altitude_through_ringing_noise_and_an_object():
     assert np.all(track.altitude_m[100:120] > alt[100:120] - 0.1)
 
 
+def test_short_early_return_on_one_side_is_not_the_altitude():
+    """A proud object near the nadir on one side returns 1 m early over 15 pings (2 s): the
+    altitude stays the seabed's later, continuous return; a real descent is followed at once."""
+    rng = np.random.default_rng(21)
+    rows = 240
+    alt = np.full(rows, 6.0)
+    alt[150:] = 6.0 - 0.02 * np.arange(rows - 150)  # descends 1.8 m over 90 pings (12 s)
+    port = make_tile("port", rows=rows, cols=400, dr_m=0.05, range0_m=0.025, rng=rng)
+    stbd = port.replace(side="stbd")
+    early = range(60, 75)
+    port = port.replace(pixels=_pings(alt, rng=rng, object_rows=early))
+    stbd = stbd.replace(pixels=_pings(alt, rng=rng))
+    track = track_bottom(port, stbd)
+    np.testing.assert_allclose(track.altitude_m, alt, atol=2 * 0.05)
+    assert track.found.mean() > 0.98
+    # the tracker without the along-track envelope follows the object's top
+    bare = track_bottom(port, stbd, envelope_s=0.0)
+    assert np.max(alt[early] - bare.altitude_m[early]) > 0.5
+    # the same object cut by a block boundary: the next block continues the envelope
+    first = track_bottom(port.replace(pixels=port.pixels[:68], ping_time=port.ping_time[:68], nav=None),
+                         stbd.replace(pixels=stbd.pixels[:68], ping_time=stbd.ping_time[:68], nav=None))
+    second = track_bottom(port.replace(pixels=port.pixels[68:], ping_time=port.ping_time[68:], nav=None),
+                          stbd.replace(pixels=stbd.pixels[68:], ping_time=stbd.ping_time[68:], nav=None),
+                          prior=first)
+    np.testing.assert_allclose(second.altitude_m, alt[68:], atol=2 * 0.05)
+
+
 def test_tracker_joins_blocks_and_reports_no_return():
     rng = np.random.default_rng(12)
     alt = np.full(40, 3.0)
@@ -186,10 +216,38 @@ def test_ground_range_blanks_the_first_return_band():
     np.testing.assert_array_equal(cut.pixels[~band], plain.pixels[~band])
 
 
-def _replay(xtf, tmp_path, band_m):
-    cfg = tmp_path / f"band{band_m}.toml"
-    cfg.write_text(f"[sensor]\nfirst_return_band_m = {band_m}\n")
-    out = tmp_path / f"contacts{band_m}.jsonl"
+def test_nav_merger_band_reaches_the_measured_rise_of_the_return():
+    """With ``first_return_level`` the band of a tile is the measured rise of its return to
+    that fraction of the seabed level (here 0.8 m by construction), never less than the fixed
+    band; a tile too short to measure takes its side's last value."""
+    rng = np.random.default_rng(41)
+    rows, dr, h = 64, 0.03, 4.0
+    tile = make_tile("port", rows=rows, cols=600, dr_m=dr, range0_m=0.5 * dr, rng=rng)
+    tile = tile.replace(nav=TileNav(tile.nav.lat_deg, tile.nav.lon_deg, tile.nav.heading_deg, np.full(rows, h)))
+    x = np.broadcast_to(tile.ranges_m[None, :] - h, (rows, tile.cols))
+    level = np.where(x < 0, 0.01, np.clip(0.1 + 0.9 * x / 1.2, 0.1, 1.0))
+    tile = tile.replace(pixels=(3000.0 * level * rng.rayleigh(1.0, size=level.shape)).astype(np.float32))
+    merger = NavMerger(NavTrack(), first_return_band_m=0.5, first_return_level=0.7, first_return_band_max_m=2.5)
+    (ground,) = merger.push(tile, now=float(tile.ping_time[-1]))
+    first = np.array([np.flatnonzero(np.isfinite(r))[0] for r in ground.pixels])
+    edge_m = np.sqrt(ground.ranges_m[first] ** 2 + h ** 2) - h  # slant metres past the return
+    assert np.all(np.abs(edge_m - 0.8) <= 3 * dr)
+    short = tile.replace(pixels=tile.pixels[:4], ping_time=tile.ping_time[:4],
+                         nav=TileNav(*(a[:4] for a in (tile.nav.lat_deg, tile.nav.lon_deg, tile.nav.heading_deg,
+                                                        tile.nav.altitude_m))), seq=1)
+    (g2,) = merger.push(short, now=float(short.ping_time[-1]) + 1.0)
+    first2 = np.array([np.flatnonzero(np.isfinite(r))[0] for r in g2.pixels])
+    np.testing.assert_array_equal(first2, first[:4])
+    fixed = NavMerger(NavTrack(), first_return_band_m=0.5)  # level 0: the fixed band only
+    (g3,) = fixed.push(tile, now=float(tile.ping_time[-1]))
+    first3 = np.array([np.flatnonzero(np.isfinite(r))[0] for r in g3.pixels])
+    assert np.all(np.abs(np.sqrt(g3.ranges_m[first3] ** 2 + h ** 2) - h - 0.5) <= 2 * dr)
+
+
+def _replay(xtf, tmp_path, name, config=""):
+    cfg = tmp_path / f"{name}.toml"
+    cfg.write_text(config)
+    out = tmp_path / f"contacts-{name}.jsonl"
     r = subprocess.run([sys.executable, "-m", "atr_node", "replay", str(xtf), "--config", str(cfg),
                         "--online-calibration", "off", "--publish", "none", "--speed", "max",
                         "--contacts-out", str(out), "--quiet"], capture_output=True, text=True, timeout=600)
@@ -197,34 +255,41 @@ def _replay(xtf, tmp_path, band_m):
     return [json.loads(x) for x in out.read_text().splitlines()]
 
 
-def _beyond_band_m(contacts, tiles, band_m):
-    """Per contact: its ground distance from the nadir (across the heading of the ping it lies
-    abeam of) minus the ground range where the band ends at that ping's altitude."""
-    lat = np.concatenate([t.nav.lat_deg for t in tiles]); lon = np.concatenate([t.nav.lon_deg for t in tiles])
-    hdg = np.radians(np.concatenate([t.nav.heading_deg for t in tiles]))
-    alt = np.concatenate([t.nav.altitude_m for t in tiles])
-    k = math.radians(1.0) * 6371000.0
-    out = []
-    for c in contacts:
-        de = (c["lon_deg"] - lon) * k * np.cos(np.radians(lat)); dn = (c["lat_deg"] - lat) * k
-        along = de * np.sin(hdg) + dn * np.cos(hdg)
-        i = int(np.argmin(np.abs(along)))
-        across = abs(de[i] * np.cos(hdg[i]) - dn[i] * np.sin(hdg[i]))
-        out.append(across - math.sqrt(2 * alt[i] * band_m + band_m ** 2))
-    return np.array(out)
+def _zones(contacts, tiles, band_m):
+    """Where each contact lies on the recorded waterfall (ping, slant range, altitude used)."""
+    pings = [SidePings.from_tiles(tiles, side) for side in ("port", "stbd")]
+    nav = next(t for t in tiles if t.nav is not None)
+    frame = MissionFrame("utm", float(nav.nav.lat_deg[0]), float(nav.nav.lon_deg[0]))
+    places = locate_contacts(pings, contacts, frame, band_m=band_m)
+    assert len(places) == len(contacts)  # every contact lies abeam of a ping
+    return places
 
 
 @pytest.mark.parametrize("name", ["river-000_1236.xtf", "scotsman-iver2.xtf"])
 def test_no_contact_in_the_water_column_or_on_the_first_return(real_data, tmp_path, name):
+    """Strict: every contact, mapped back to its ping and slant range, lies beyond the
+    first-return band (``zone_of``: R >= H + first_return_band_m with the altitude the node used)."""
     xtf = real_data / "xtf" / name
     band = Settings().sensor.first_return_band_m
     _, tiles = _read(xtf)
-    tiles = [t for t in tiles if t.side == "port" and t.nav is not None]
-    contacts = _replay(xtf, tmp_path, band)
+    contacts = _replay(xtf, tmp_path, "default")
     assert contacts
-    # contact positions are evidence-grid positions: within a cell of the detections
-    assert np.all(_beyond_band_m(contacts, tiles, band) > -Settings().fusion.cell_m)
+    places = _zones(contacts, tiles, band)
+    bad = [(p.side, p.ping, round(p.slant_range_m, 2), round(p.altitude_m, 2), p.zone) for p in places
+           if p.zone != "seabed"]
+    assert not bad
     if name.startswith("river"):
-        # the same check fails without the band: the nadir return does give contacts there
-        bare = _replay(xtf, tmp_path, 0.0)
-        assert np.sum(_beyond_band_m(bare, tiles, band) <= -Settings().fusion.cell_m) >= 3
+        # the same check fails with the old handling: altitude following the objects' tops,
+        # no band, half-valid windows
+        _, old_tiles = _read(xtf)
+        bare = _replay(xtf, tmp_path, "bare", "[sensor]\nfirst_return_band_m = 0.0\nfirst_return_level = 0.0\n"
+                                                "[detectors]\nmin_valid_fraction_zones = 0.5\n")
+        assert sum(p.zone != "seabed" for p in _zones(bare, old_tiles, band)) >= 3
+        # and the river's two objects read by eye keep their contacts (port ping ~330 at
+        # 23-25 m slant, starboard ping ~925 at 29 m; 3 m along-track at 0.22 m per ping)
+        for side, ping, slant in (("port", 330, 24.0), ("stbd", 925, 29.0)):
+            assert any(p.side == side and abs(p.ping - ping) <= 14 and abs(p.slant_range_m - slant) <= 3.0
+                       for p in places), (side, ping, slant)
+    else:
+        # the wreck (starboard pings 160-400 within 14 m slant) keeps a contact
+        assert any(p.side == "stbd" and 160 <= p.ping <= 400 and p.slant_range_m <= 14.0 for p in places)

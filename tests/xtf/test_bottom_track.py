@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from atr_node.io.xtf import XtfReader
-from atr_node.io.xtf_bottom import bottom_altitude_m, first_return_m
+from atr_node.io.xtf_bottom import bottom_altitude_m, first_return_length_m, first_return_m
 from atr_node.records.tile import Tile
 
 from .conftest import make_tile
@@ -27,8 +27,8 @@ def _planted(altitudes_m, *, dr_m=0.03, cols=800, side="stbd", rng=None):
 def test_first_return_finds_a_planted_seabed():
     h = np.array([3.0, 4.25, 7.5, 11.0, 2.0])
     tile = _planted(h)
-    # pings 1.25 to 9 m apart: tracked each on its own (no ping-to-ping continuity)
-    got = first_return_m(tile, jump_penalty=0.0)
+    # pings 1.25 to 9 m apart: tracked each on its own (no ping-to-ping continuity, no envelope)
+    got = first_return_m(tile, jump_penalty=0.0, envelope_s=0.0)
     np.testing.assert_allclose(got, h, atol=tile.dr_m)
 
 
@@ -40,7 +40,8 @@ def test_altitude_takes_the_later_side_and_filters_outliers():
     stbd = _planted(early, rng=np.random.default_rng(8))
     alt = bottom_altitude_m(port, stbd)
     np.testing.assert_allclose(alt, 5.0, atol=0.11)
-    lone = bottom_altitude_m(None, stbd, jump_penalty=0.0)
+    # each ping on its own (no continuity, no along-track envelope), the early side is fooled
+    lone = bottom_altitude_m(None, stbd, jump_penalty=0.0, envelope_s=0.0)
     assert np.all(lone[5:9] < 2.2)
 
 
@@ -72,3 +73,24 @@ def test_sonar_altitude_removes_the_dark_band_of_the_real_file(iver2):
     recorded = np.concatenate([t.nav.altitude_m for t in tiles["altimeter"]])
     assert np.all(sonar > recorded) and np.all(sonar < 1.35 * recorded)
     assert ratio["altimeter"] < 0.05 and ratio["sonar"] > 0.1
+
+
+def test_first_return_length_measures_a_planted_rise():
+    """Seabed rising linearly from 0.1 to 1 of its level over 1.2 m after the first return:
+    it reaches 0.7 at 0.8 m (by construction), whatever the altitude of each ping."""
+    rng = np.random.default_rng(31)
+    rows, dr = 120, 0.03
+    alt = 4.0 + 0.5 * np.sin(np.arange(rows) / 15.0)
+    tile = make_tile("port", rows=rows, cols=600, dr_m=dr, range0_m=0.5 * dr, rng=rng)
+    x = tile.ranges_m[None, :] - alt[:, None]
+    level = np.where(x < 0, 0.01, np.clip(0.1 + 0.9 * x / 1.2, 0.1, 1.0))
+    px = (3000.0 * level * rng.rayleigh(1.0, size=level.shape)).astype(np.float32)
+    tile = tile.replace(pixels=px)
+    got = first_return_length_m(tile, alt, level=0.7, max_m=2.5)
+    assert got == pytest.approx(0.8, abs=3 * dr)
+    # a sharp step (the river's starboard side) has no length; too few pings are not measured
+    step = tile.replace(pixels=np.where(x < 0, 30.0, 3000.0).astype(np.float32))
+    assert first_return_length_m(step, alt) == pytest.approx(0.0, abs=dr)
+    assert np.isnan(first_return_length_m(tile, alt, min_rows=rows + 1))
+    with pytest.raises(ValueError, match="slant"):
+        first_return_length_m(tile.replace(slant=False), alt)
