@@ -15,10 +15,21 @@ import argparse
 import importlib
 import importlib.util
 import logging
+import re
 import sys
+import traceback
 
 from . import __version__
 from .errors import AtrError
+
+EXIT_STATUS = """exit status:
+  0    done
+  1    bad input or a failure at run time: what was wrong and where, in one line on stderr
+       (-v adds the traceback of an unexpected error); no partial output file is left
+  2    usage: an unknown, missing or ill-formed option (argparse's message and the usage)
+  130  interrupted (Ctrl-C)"""
+"""The epilog of every subcommand's --help; a module may add lines of its own cases as
+``EXIT_DETAIL``."""
 
 # name -> (one-line help, issue that builds it)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -53,6 +64,13 @@ def _not_built(args: argparse.Namespace) -> int:
     return 2
 
 
+def _plain(doc: str) -> str:
+    """A module docstring as --help text: reST markers dropped (``Examples::`` -> ``Examples:``,
+    double back-quotes -> none), since argparse prints the text as it is."""
+    text = re.sub(r"::$", ":", doc.strip(), flags=re.M)
+    return text.replace("``", "")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="atr-node",
@@ -65,13 +83,16 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (help_text, issue) in COMMANDS.items():
         if _is_built(name):
             mod = importlib.import_module(_module_name(name))
-            p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip(),
+            detail = getattr(mod, "EXIT_DETAIL", "")
+            p = sub.add_parser(name, help=help_text, description=_plain(mod.__doc__ or help_text),
+                               epilog=EXIT_STATUS + (f"\n{detail}" if detail else ""),
                                formatter_class=argparse.RawDescriptionHelpFormatter)
             mod.add_arguments(p)
             p.set_defaults(func=mod.run)
         else:
             p = sub.add_parser(name, help=f"{help_text} [not built yet]",
-                               description=f"{help_text}.\n\nNot built yet: it comes with the {issue} issue.")
+                               description=f"{help_text}.\n\nNot built yet: it comes with the {issue} issue.",
+                               epilog="exit status: 2 (not built yet)")
             p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
             p.set_defaults(func=_not_built)
     return parser
@@ -88,10 +109,26 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except AtrError as exc:
-        print(f"atr-node {args.command}: error: {exc}", file=sys.stderr)
-        return 1
+        return _fail(args, str(exc))
     except KeyboardInterrupt:
+        print(f"atr-node {args.command}: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:  # a file or socket the command was given: name it, no traceback
+        where = exc.filename if exc.filename is not None else ""
+        why = exc.strerror or str(exc)
+        return _fail(args, f"{where}: {why}" if where else why)
+    except Exception as exc:  # a bug or a case without its own message yet: still one line
+        return _fail(args, f"unexpected {type(exc).__name__}: {exc}"
+                           + ("" if args.verbose else " (run with -v for the traceback)"))
+
+
+def _fail(args: argparse.Namespace, message: str) -> int:
+    """Print the one-line error of a failed command (the traceback too with -v); exit status 1."""
+    if args.verbose:
+        traceback.print_exc(file=sys.stderr)
+    first = " ".join(message.split())  # one line even when a message holds newlines
+    print(f"atr-node {args.command}: error: {first}", file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

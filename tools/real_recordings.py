@@ -58,10 +58,10 @@ def _replay(path: Path, contacts: Path, summary: Path, extra: list[str]) -> subp
     return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
 
 
-def _tiles(path: Path, settings) -> list[Tile]:
+def _tiles(path: Path, settings, crs: str) -> list[Tile]:
     from atr_node.node.service import open_recording
 
-    records = open_recording(path, crs=settings.recording.crs, altitude=settings.recording.altitude)
+    records = open_recording(path, crs=crs, altitude=settings.recording.altitude)
     return [Tile.from_map(r.msg) for r in records if r.link == "sonar"]
 
 
@@ -93,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.config:
         extra = ["--config", args.config, *extra]
     band_m = settings.sensor.first_return_band_m
+    crs = extra[extra.index("--crs") + 1] if "--crs" in extra[:-1] else settings.recording.crs
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     table = []
@@ -110,7 +111,11 @@ def main(argv: list[str] | None = None) -> int:
             contacts = [json.loads(x) for x in cpath.read_text().splitlines() if x.strip()]
             summary = json.loads(spath.read_text())
         live = [c for c in contacts if c["state"] != "withdrawn"]
-        tiles = _tiles(path, settings)
+        tiles = _tiles(path, settings, crs)
+        if not any(t.nav is not None for t in tiles):
+            print(f"{path}: no ping has a position: nothing to place", file=sys.stderr)
+            failed += 1
+            continue
         merger = _band_merger(settings)
         pings = [SidePings.from_tiles(tiles, s, band_m=lambda t: merger._band_m(t, t.nav.altitude_m))
                  for s in ("port", "stbd")]
@@ -128,13 +133,12 @@ def main(argv: list[str] | None = None) -> int:
         if path.stem in WRECKS:
             side, a, b, rmax = WRECKS[path.stem]
             wreck = [p.id for p in places if p.side == side and a <= p.ping <= b and p.slant_range_m <= rmax]
+        alt = np.concatenate([p.altitude_m for p in pings])
         row = {"file": path.name, "tiles": summary["tiles_in"], "tile_pings": [t.rows for t in tiles if t.side == "port"],
                "contacts": len(live), "placed": len(places),
                "zones": {z: sum(1 for p in places if p.zone == z) for z in ZONES},
                "no_detection": sum(1 for c in live if c.get("detections", 1) == 0),
-               "altitude_m": [round(float(np.nanmin(pings[1].altitude_m)), 2),
-                              round(float(np.nanmedian(pings[1].altitude_m)), 2),
-                              round(float(np.nanmax(pings[1].altitude_m)), 2)],
+               "altitude_m": [round(float(f(alt)), 2) for f in (np.nanmin, np.nanmedian, np.nanmax)],
                "found": {label: ids for label, ids in found}, "wreck_contacts": wreck,
                "model": summary.get("model")}
         table.append(row)

@@ -47,6 +47,18 @@ def snapshot_from_args(args: argparse.Namespace, settings: Any = None) -> str | 
     return (settings.links.snapshot_endpoint or None) if settings is not None else None
 
 
+def follow_endpoint(args: argparse.Namespace, settings: Any = None) -> str:
+    """The PUB endpoint to follow (``--from``, else ``links.publish_endpoint`` of ``settings``),
+    checked with the ``--snapshot`` one before any socket: a bad one fails in one line naming
+    the option."""
+    from ._endpoints import check_endpoint, check_optional_endpoint
+
+    check_optional_endpoint(getattr(args, "snapshot", None), "--snapshot")
+    if getattr(args, "endpoint", None):
+        return check_endpoint(args.endpoint, "--from")
+    return check_endpoint(settings.links.publish_endpoint, "links.publish_endpoint")
+
+
 def curve_from_args(args: argparse.Namespace) -> Any:
     """The CURVE client settings of ``--curve-key``/``--node-key`` (None when neither is given)."""
     if not args.curve_key and not args.node_key:

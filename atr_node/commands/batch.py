@@ -1,5 +1,5 @@
 """Process many recordings on Dask and merge their evidence exactly; or run the calibration
-Monte Carlo on the same engine (issue 11).
+Monte Carlo on the same engine.
 
 Recordings (.atrlog or .xtf): each one is replayed through the node's pipeline in a task (a
 fixed performance model, no on-line calibration), its committed legs become evidence deltas,
@@ -8,14 +8,14 @@ and contacts are extracted from the merged grid. The result does not depend on t
 workers or the order tasks finish in: --scheduler serial gives the same contacts.
 
 Calibration (--calibrate): target injection per image as tasks, pooled, the model written
-to --out; the same model as ``atr-node calibrate`` with the same images and seed.
+to --out; the same model as `atr-node calibrate` with the same images and seed.
 
 Engine: a local Dask cluster of --workers processes by default; --scheduler ADDRESS for a
 running scheduler (every worker must read the recordings at the same path); --scheduler
 serial for one process. A failed task is retried (--retries) and every failure is reported;
 the exit status is 1 if any recording failed after its retries (the others are still merged).
 
-Examples::
+Examples:
 
     atr-node batch missions/*/mission.atrlog --contacts-out contacts.jsonl
     atr-node batch a.atrlog b.xtf --scheduler tcp://10.0.0.5:8786 --summary run.json
@@ -31,7 +31,11 @@ import time
 
 from ..config import load_settings
 from ..errors import AtrError
+from ..io.atomic import atomic_open
 from ._crs import add_crs_argument, resolve_crs
+from ._progress import add_progress_argument
+
+EXIT_DETAIL = "batch: 1 also when a recording failed after its retries (the others are still merged)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -45,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--contacts-out", metavar="FILE", help="write the contacts as JSON lines")
     parser.add_argument("--grid-out", metavar="FILE", help="write the merged evidence grid (.npz snapshot)")
     parser.add_argument("--summary", metavar="FILE", help="write timings, counters and failures as JSON")
-    parser.add_argument("--quiet", action="store_true", help="no progress line")
+    add_progress_argument(parser)
     add_crs_argument(parser)
     cal = parser.add_argument_group("calibration Monte Carlo (--calibrate)")
     cal.add_argument("--calibrate", action="store_true", help="run the calibration Monte Carlo instead")
@@ -107,6 +111,12 @@ def run(args: argparse.Namespace) -> int:
         return _calibrate(args, settings)
     if not args.recordings:
         raise AtrError("batch: give recordings (.atrlog, .xtf) or --calibrate")
+    if args.scheduler in (None, "serial"):  # read here: a missing file is bad input, not a failed task
+        from pathlib import Path
+
+        for path in args.recordings:
+            if not Path(path).is_file():
+                raise AtrError(f"{path}: no such file; expected a recording (.atrlog, .xtf or .jsf)")
     from ..batch.grids import run_recordings
     from ..calibration.model import PerformanceModel
     from ..node.service import write_contacts
@@ -118,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     with Engine(args.scheduler, args.workers, args.retries) as eng:
         print(f"atr-node batch: {len(args.recordings)} recording(s) on {eng.describe()}", file=sys.stderr)
         res = run_recordings(args.recordings, settings, model, eng,
-                             progress=_Progress("recordings", args.quiet or not sys.stderr.isatty()))
+                             progress=_Progress("recordings", args.no_progress or not sys.stderr.isatty()))
     wall = time.perf_counter() - t0
     bad = _report(res.outcomes)
     if args.contacts_out:
@@ -134,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
                "outcomes": [{"name": o.name, "ok": o.ok, "attempts": o.attempts, "errors": list(o.errors),
                              "seconds": round(o.seconds, 3)} for o in res.outcomes]}
     if args.summary:
-        with open(args.summary, "w") as fh:
+        with atomic_open(args.summary, "w") as fh:
             json.dump(summary, fh, indent=2)
     print(f"atr-node batch: {len(args.recordings) - bad}/{len(args.recordings)} recordings, {res.deltas} deltas, "
           f"{summary['tiles_in']} tiles ({dropped_text(summary)}), {len(res.contacts)} contacts; "
@@ -163,7 +173,7 @@ def _calibrate(args: argparse.Namespace, settings) -> int:
         print(f"atr-node batch --calibrate: {len(images)} image(s) x {iterations} iterations x {targets} targets "
               f"on {eng.describe()}", file=sys.stderr)
         responses, outcomes = run_calibration(images, settings, eng, iterations=iterations, targets_per_image=targets,
-                                              seed=seed, progress=_Progress("images", args.quiet or not sys.stderr.isatty()))
+                                              seed=seed, progress=_Progress("images", args.no_progress or not sys.stderr.isatty()))
     _report(outcomes)
     wall = time.perf_counter() - t0
     model = estimate_model(responses, calibration=cal, thresholds=settings.detectors.threshold,

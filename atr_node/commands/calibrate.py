@@ -7,7 +7,7 @@ images come from recordings (.atrlog or .xtf sonar tiles, or 8-bit PNG textures 
 by default, from synthetic seabeds. Writes the model (JSON, versioned) and two figures:
 confidence against gamma for three thresholds (paper figure 3) and the P(y) curves (figure 4).
 
-Examples::
+Examples:
 
     atr-node calibrate --out model.json --plots plots/
     atr-node calibrate --input mission.atrlog --max-images 4 --out model.json
@@ -25,6 +25,8 @@ from pathlib import Path
 from ..config import load_settings
 from ..errors import AtrError
 from ._crs import add_crs_argument, resolve_crs
+from ._inputs import require_sonar_tile
+from ._progress import add_progress_argument
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plots", default=None, metavar="DIR",
                         help="write confidence.png and pyr.png there (default: next to --out)")
     parser.add_argument("--no-plots", action="store_true", help="write no figures")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_progress_argument(parser, help="no progress bar on stderr")
     add_crs_argument(parser)
 
 
@@ -99,9 +101,12 @@ def run(args: argparse.Namespace) -> int:
     iterations, targets, seed = calibration_counts(args, cal)
     seabed = args.seabed or settings.simulation.seabed
     if args.input:
+        crs = resolve_crs(getattr(args, "crs", None), settings)
+        for path in args.input:  # every recording checked before the first injection
+            if Path(path).suffix.lower() in (".atrlog", ".xtf", ".jsf"):
+                require_sonar_tile(path, crs=crs, altitude=settings.recording.altitude)
         images = images_from_paths(args.input, settings=settings, max_images=args.max_images,
-                                   pixel_m=args.pixel_m, range0_m=args.range0_m,
-                                   crs=resolve_crs(getattr(args, "crs", None), settings))
+                                   pixel_m=args.pixel_m, range0_m=args.range0_m, crs=crs)
         source = ", ".join(str(p) for p in args.input)
     else:
         images = synthetic_images(args.synthetic, settings=settings, rows=args.rows, cols=args.cols,

@@ -10,7 +10,8 @@
 The direction follows the suffixes. What was read, skipped (unknown XTF packet types, records
 XTF cannot hold) and dropped is printed at the end, packets with the same quirk (a zero date,
 too short) as one count per kind; the exit status is 0 when the conversion ran to the end of
-the input, even if some packets or records were skipped.
+the input, even if some packets or records were skipped. OUT is written under a temporary name
+in its folder and renamed when complete: after an error there is no OUT (nor a partial one).
 
 --crs: XTF -> atrlog, the CRS of positions in projected metres (NavUnits 0; such a file fails
 at once without it); atrlog -> XTF, write positions as easting and northing in that CRS."""
@@ -25,7 +26,11 @@ from ..errors import AtrError
 from ..io.atrlog import AtrLogReader, AtrLogWriter
 from ..io.xtf import DEFAULT_TILE_PINGS, XtfReader
 from ..io.xtf_write import XtfWriter
+from ..io.atomic import atomic_path
 from ._crs import add_crs_argument, resolve_crs
+from ._inputs import require_sonar_tile
+
+EXIT_DETAIL = "convert: 1 also for an input that is not a recording or holds no sonar tile (OUT is then not written)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -100,13 +105,18 @@ def run(args: argparse.Namespace) -> int:
     if args.tile_pings < 1:
         raise AtrError(f"--tile-pings must be >= 1, got {args.tile_pings}")
     crs = resolve_crs(getattr(args, "crs", None))
+    if not dst.parent.is_dir():
+        raise AtrError(f"{dst}: No such file or directory: no folder {dst.parent}")
+    require_sonar_tile(src, crs=crs, altitude=args.altitude)
     try:
-        if kin in ("xtf", "jsf"):
-            text = xtf_to_atrlog(src, dst, tile_pings=args.tile_pings, mission=args.mission, leg=args.leg,
-                                 altitude=args.altitude, crs=crs, subsystem=getattr(args, "subsystem", None))
-        else:
-            text = atrlog_to_xtf(src, dst, crs=crs)
+        with atomic_path(dst) as tmp:
+            if kin in ("xtf", "jsf"):
+                text = xtf_to_atrlog(src, tmp, tile_pings=args.tile_pings, mission=args.mission, leg=args.leg,
+                                     altitude=args.altitude, crs=crs, subsystem=getattr(args, "subsystem", None))
+            else:
+                text = atrlog_to_xtf(src, tmp, crs=crs)
     except OSError as exc:
         raise AtrError(f"{exc.filename or dst}: {exc.strerror or exc}") from None
+    text = text.replace(str(tmp), str(dst))  # the summary names the file the user asked for
     print(text, file=sys.stdout)
     return 0

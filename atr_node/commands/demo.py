@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from ..config import load_settings
+from ._progress import add_progress_argument
 
 MISSIONS = (
     # name, seed, seabed, hard
@@ -36,16 +37,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", metavar="FILE", help="starting performance model (default: the shipped one)")
     parser.add_argument("--small", action="store_true",
                         help="small missions (3 legs of 70 m, 5 targets): a quick check that everything runs")
+    add_progress_argument(parser, help="no progress lines on stderr (the summary is still printed)")
 
 
 class _Progress:
-    def __init__(self, label: str) -> None:
+    def __init__(self, label: str, *, enabled: bool = True) -> None:
         self.label = label
+        self.enabled = enabled
         self.t0 = time.monotonic()
         self.tty = sys.stderr.isatty()
         self._last = 0.0
 
     def step(self, text: str) -> None:
+        if not self.enabled:
+            return
         sys.stderr.write(f"{'' if not self.tty else chr(13)}  {self.label}: {text}".ljust(78)
                          + ("" if self.tty else "\n"))
         sys.stderr.flush()
@@ -57,7 +62,7 @@ class _Progress:
             self.step(f"node: {tiles} tiles, {records} records, {now - self.t0:.0f} s")
 
     def done(self) -> None:
-        if self.tty:
+        if self.tty and self.enabled:
             sys.stderr.write("\n")
 
 
@@ -77,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     results = []
     for name, seed, seabed, hard in MISSIONS[: args.missions]:
         settings = base.replace(simulation=dataclasses.replace(base.simulation, seabed=seabed))
-        prog = _Progress(name)
+        prog = _Progress(name, enabled=not args.no_progress)
         prog.step("simulating the survey")
         folder = out / name
         files = generate_mission(settings, folder, seed=seed, name=name, hard=hard)
@@ -95,10 +100,27 @@ def run(args: argparse.Namespace) -> int:
     for name, _, _, _, res in results:
         print(f"\n{name}: {res.targets} targets, {res.covered_km2:.3f} km² covered")
         print(rows_markdown(res.rows))
+        print(f"  the node's contacts and the comparison pass's DS of every detector: "
+              f"{res.stats.get('node_vs_comparison')}")
         for k, (ok, why) in res.claims.items():
             print(f"  claim {k}: {'holds' if ok else 'DOES NOT HOLD'} - {why}")
     print(f"\nreport: {out / 'report.md'} ({wall:.0f} s)")
     return 0
+
+
+def _sources_text(name: str, res) -> str:
+    """What the table's two sources are, and whether they agree (the report's words)."""
+    from ..evaluation.evaluate import COMPARISON_SOURCE, NODE_SOURCE
+
+    agree = res.stats.get("node_vs_comparison", "")
+    said = ("The comparison pass's DS row of every detector agrees with it at the operating point."
+            if agree == "agree" else f"The comparison pass's DS row of every detector and the node {agree}.")
+    return (f"The first row, *{NODE_SOURCE}*, scores the contacts the node published "
+            f"({name}/contacts.jsonl, the final state of each, as `--contacts-out` writes them) exactly as "
+            f"`atr-node evaluate --contacts` does. The other rows, *{COMPARISON_SOURCE}*, run every method "
+            f"of the paper's figure 6 on the detections of one pass with the model the node ended with: "
+            f"their DS operating points take the contacts as the node extracts them, their ROC curves "
+            f"(best Pd) re-segment the belief map down to Bel 0.02. {said}")
 
 
 def _report(results, wall: float) -> str:
@@ -114,7 +136,8 @@ def _report(results, wall: float) -> str:
                   f"{files.tiles} tiles; {res.covered_km2:.3f} km² covered. Detector ranking: "
                   f"{', '.join(d.upper() for d in res.stats.get('ranking', []))}; on-line model from tile "
                   f"{res.stats.get('online_switched_at')}.", "",
-                  rows_markdown(res.rows), "", "Claims of the paper (figure 6):", ""]
+                  _sources_text(name, res), "",
+                  rows_markdown(res.rows), "", "Claims of the paper (figure 6), on the comparison pass:", ""]
         parts += [f"- {k}: **{'holds' if ok else 'does not hold'}**: {why}" for k, (ok, why) in res.claims.items()]
         parts += [""]
         for key, title in (("mosaic", "Mosaic, truth and contacts"), ("roc", "ROC curves"),

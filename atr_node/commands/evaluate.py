@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -26,6 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from ..config import load_settings
+from ..errors import AtrError
+from ._endpoints import check_endpoint
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,10 +47,66 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..evaluation.scoring import contacts_from_jsonl, local_en, read_truth, roc
+    from ..evaluation.scoring import read_truth
 
     settings = load_settings(args.config)
+    # every input checked before the output folder exists: a failure leaves nothing behind
+    read_truth(args.truth)
+    if args.bel is not None and not 0.0 <= args.bel <= 1.0:
+        raise AtrError(f"--bel {args.bel:g}: expected a threshold on Bel(T) in [0, 1]")
+    if args.log:
+        from ._crs import resolve_crs
+        from ._inputs import require_sonar_tile
+
+        require_sonar_tile(args.log, crs=resolve_crs(None, settings), altitude=settings.recording.altitude)
+    elif args.contacts:
+        _check_contacts_file(args.contacts)
+    else:
+        check_endpoint(args.subscribe, "--subscribe")
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise AtrError(f"--out {out}: not a folder")
+    created = not out.exists()
+    try:
+        return _evaluate(args, settings, out)
+    except BaseException:
+        if created:  # made by this run: whatever is in it is partial
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+
+
+def _check_contacts_file(path: str) -> None:
+    """Fail in one line unless ``path`` holds contacts as JSON lines with a position and a
+    belief (``atr-node replay --contacts-out``)."""
+    p = Path(path)
+    try:
+        fh = open(p, encoding="utf-8")
+    except OSError as exc:
+        raise AtrError(f"contacts file {p}: {exc.strerror or exc}; expected the JSON lines of "
+                       f"atr-node replay --contacts-out") from None
+    with fh:
+        try:
+            for line, text in enumerate(fh, start=1):
+                if not text.strip():
+                    continue
+                try:
+                    c = json.loads(text)
+                except json.JSONDecodeError as exc:
+                    raise AtrError(f"contacts file {p}, line {line}: not JSON ({exc.msg}); expected one contact "
+                                   f"object per line (atr-node replay --contacts-out)") from None
+                bad = [k for k in ("lat_deg", "lon_deg", "bel") if not isinstance(c, dict)
+                       or isinstance(c.get(k), bool) or not isinstance(c.get(k), (int, float))]
+                if bad:
+                    raise AtrError(f"contacts file {p}, line {line}: no number for {', '.join(bad)}; expected a "
+                                   f"contact object (ICD section 3)")
+        except UnicodeDecodeError:
+            raise AtrError(f"contacts file {p}: not text; expected the JSON lines of atr-node replay "
+                           f"--contacts-out") from None
+
+
+def _evaluate(args: argparse.Namespace, settings, out: Path) -> int:
+    from ..evaluation.scoring import contacts_from_jsonl, read_truth, score_contacts
+
     out.mkdir(parents=True, exist_ok=True)
     bel = args.bel if args.bel is not None else settings.fusion.report_bel
     if args.log:
@@ -66,33 +125,20 @@ def run(args: argparse.Namespace) -> int:
         contacts = contacts_from_jsonl(args.contacts)
     else:
         contacts = _listen(args.subscribe, args.duration)
-    truth = read_truth(args.truth)
-    live = [c for c in contacts if c.get("state") != "withdrawn"]
-    if truth:
-        lat0, lon0 = truth[0].lat_deg, truth[0].lon_deg
-    elif live:
-        lat0, lon0 = live[0]["lat_deg"], live[0]["lon_deg"]
-    else:
-        lat0, lon0 = 0.0, 0.0
-    t_en = np.column_stack(local_en(np.array([t.lat_deg for t in truth]), np.array([t.lon_deg for t in truth]),
-                                    lat0, lon0)) if truth else np.zeros((0, 2))
-    c_en = np.column_stack(local_en(np.array([c["lat_deg"] for c in live]), np.array([c["lon_deg"] for c in live]),
-                                    lat0, lon0)) if live else np.zeros((0, 2))
-    curve = roc("node contacts", c_en, [c["bel"] for c in live], t_en)
-    p = curve.at_threshold(bel)
-    summary = {"targets": len(truth), "contacts": len(live), "threshold_bel": bel, "pd": p.pd,
-               "false_alarms": p.false_alarms, "matched": p.matched, "best_pd": curve.best_pd(),
-               "fa_at_best_pd": curve.fa_at_pd(curve.best_pd())}
+    # the same scoring as the demo's node row (one function, atr_node.evaluation.scoring)
+    score = score_contacts(contacts, read_truth(args.truth), bel=bel)
+    curve, p, summary = score.curve, score.point, score.summary()
     (out / "evaluation.json").write_text(json.dumps(summary, indent=2))
     try:
         from ..evaluation.report import plot_roc
 
-        plot_roc([curve], [], out / "roc.png", covered_km2=0.0, title="node contacts: ROC on Bel(T)")
+        # the node's contacts are its fusion's output: the fusion panel (the only one here)
+        plot_roc([], [], out / "roc.png", covered_km2=0.0, title="node contacts: ROC on Bel(T)", fused=[curve])
     except ImportError:
         print("matplotlib not installed: no roc.png (pip install 'atr-node[plots]')", file=sys.stderr)
-    print(f"{len(truth)} targets, {len(live)} contacts: at Bel >= {bel:g}, Pd {p.pd:.2f} "
-          f"({p.matched} matched), {p.false_alarms} false alarms; best Pd {curve.best_pd():.2f} "
-          f"with {curve.fa_at_pd(curve.best_pd()):g} false alarms")
+    print(f"{score.targets} targets, {score.contacts} contacts: at Bel >= {bel:g}, Pd {p.pd:.2f} "
+          f"({p.matched} matched), {p.false_alarms} false alarms; best Pd {summary['best_pd']:.2f} "
+          f"with {summary['fa_at_best_pd']:g} false alarms")
     return 0
 
 

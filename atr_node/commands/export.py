@@ -14,8 +14,6 @@ Google Earth's network link or QGIS at them)::
 
 The format comes from each file's suffix (.geojson/.json, .kml, .csv) or --format. Withdrawn
 contacts are left out unless --include-withdrawn (then flagged by their 'state' property).
-
-Exit status: 0 when written, 1 on bad input (the file and line are named) or an unwritable file.
 """
 
 from __future__ import annotations
@@ -28,7 +26,7 @@ import threading
 import time
 
 from ..errors import AtrError
-from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, snapshot_from_args
+from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, follow_endpoint, snapshot_from_args
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +64,8 @@ def run(args: argparse.Namespace) -> int:
 
     for path in args.out:  # a bad suffix fails before any waiting
         format_of(path, args.format)
+    if args.endpoint:
+        follow_endpoint(args, None)
     if args.contacts:
         book = read_contacts(args.contacts)
         n = _write(args, book)
@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
 
         def tick() -> None:
             announce()
-            if args.refresh and time.monotonic() - last[0] >= args.refresh:
+            if args.refresh and time.monotonic() - last[0] >= args.refresh and _heard(follower.stats):
                 last[0] = time.monotonic()
                 try:
                     _write(args, follower.book)
@@ -91,11 +91,16 @@ def run(args: argparse.Namespace) -> int:
                                   tick=tick)
         except KeyboardInterrupt:
             why = "interrupt"
-        n = _write(args, follower.book)
         st = follower.stats
+        if not _heard(st):  # no file rather than empty ones that look like "no contacts"
+            raise AtrError(f"nothing received from {args.endpoint}: is a node publishing there? (no file written)")
+        n = _write(args, follower.book)
         print(f"atr-node export: {n} contacts ({follower.book.n_withdrawn} withdrawn) from {args.endpoint} after "
               f"{st.heartbeats} heartbeats, {st.contacts} contact messages, {st.bad} bad; {snapshot_text(st)}; "
               f"stopped: {why} -> {', '.join(args.out)}", file=sys.stderr)
-        if st.heartbeats == 0 and st.contacts == 0:
-            raise AtrError(f"nothing received from {args.endpoint}: is a node publishing there? (files written empty)")
     return 0
+
+
+def _heard(stats) -> bool:
+    """Whether the node was heard at all: a heartbeat, a contact message or a snapshot."""
+    return bool(stats.heartbeats or stats.contacts or getattr(stats, "snapshot", "") == "ok")

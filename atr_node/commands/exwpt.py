@@ -19,7 +19,9 @@ import signal
 import sys
 import threading
 
-from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, snapshot_from_args
+from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, follow_endpoint, snapshot_from_args
+
+EXIT_DETAIL = "exwpt: 1 also when sentences are still queued at the end (the serial port stayed down)"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     from ..operators.stream import NodeFollower
 
     settings = None if args.endpoint else load_settings(args.config)
-    endpoint = args.endpoint or settings.links.publish_endpoint
+    endpoint = follow_endpoint(args, settings)
     snapshot = snapshot_from_args(args, settings)
     out = ExwptOutput(args.port, baudrate=args.baudrate, category=args.category, depth_m=args.depth_m,
                       min_move_m=args.min_move_m, min_bel_change=args.min_bel_change,

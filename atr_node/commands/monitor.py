@@ -19,7 +19,8 @@ import signal
 import sys
 import threading
 
-from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, snapshot_from_args
+from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, follow_endpoint, snapshot_from_args
+from ._progress import add_progress_argument
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,7 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--state-dir", metavar="DIR", help="the node's --state-dir: real belief map in the PNG")
     parser.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     parser.add_argument("--until-silent", type=float, metavar="S", help="stop when the node was silent S seconds")
-    parser.add_argument("--plain", action="store_true", help="no ANSI escapes: print frames one after another")
+    add_progress_argument(parser, old=("--plain", "--quiet"),
+                          help="no redraw in place (no ANSI escapes): print frames one after another")
     add_snapshot_argument(parser)
     add_curve_arguments(parser)
 
@@ -44,11 +46,11 @@ def run(args: argparse.Namespace) -> int:
     from ..operators.stream import NodeFollower, snapshot_text
 
     settings = None if args.endpoint else load_settings(args.config)
-    endpoint = args.endpoint or settings.links.publish_endpoint
+    endpoint = follow_endpoint(args, settings)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with NodeFollower(endpoint, curve=curve_from_args(args), snapshot=snapshot_from_args(args, settings)) as follower:
-        mon = Monitor(follower, out=sys.stdout, refresh_s=args.refresh, ansi=False if args.plain else None,
+        mon = Monitor(follower, out=sys.stdout, refresh_s=args.refresh, ansi=False if args.no_progress else None,
                       max_rows=args.rows, png=args.png, png_every_s=args.png_every, state_dir=args.state_dir)
         why = mon.run(duration_s=args.duration, until_silent_s=args.until_silent, stop=stop)
     print(f"atr-node monitor: stopped ({why}); {follower.stats.heartbeats} heartbeats, "

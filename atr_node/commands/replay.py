@@ -14,9 +14,8 @@ the port after --publish); --contacts-out writes the final state of every contac
 With --state-dir, the node snapshots there as it goes; run the same command again after a
 crash (even SIGKILL) and it resumes from the last snapshot and ends with the same contacts.
 
-Exit status: 0 at the end of the log, 1 on an error (bad config, unreadable model, a
-recording that needs --crs), 130 when
-interrupted (after a snapshot when --state-dir is given).
+An .atrlog's damaged records (or garbage bytes) cost only themselves: they are counted by
+reason at the end of the end-of-run line and in --summary's "recording".
 """
 
 from __future__ import annotations
@@ -30,9 +29,17 @@ import threading
 import time
 
 from ..config import load_settings
+from ..errors import AtrError
+from ..io.atomic import atomic_open
 from ._crs import add_crs_argument, resolve_crs
+from ._endpoints import check_optional_endpoint
+from ._inputs import require_sonar_tile
+from ._progress import add_progress_argument
 
 log = logging.getLogger(__name__)
+
+EXIT_DETAIL = """replay: 0 at the end of the recording; 1 also for a file that is not a recording or holds no
+sonar tile, and for a bad --publish/--snapshot endpoint or one in use; 130 after a snapshot with --state-dir"""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=1, choices=(0, 1),
                         help="1: detection in a worker process (both cores); 0: one process")
     parser.add_argument("--summary", metavar="FILE", help="write run counters and timings as JSON")
-    parser.add_argument("--quiet", action="store_true", help="no progress line")
+    add_progress_argument(parser)
     add_crs_argument(parser)
 
 
@@ -65,9 +72,9 @@ def _speed(text: str) -> float | None:
     try:
         v = float(text)
     except ValueError:
-        raise SystemExit(f"atr-node replay: --speed {text!r}: expected a factor > 0 or 'max'") from None
-    if not v > 0:
-        raise SystemExit(f"atr-node replay: --speed {text!r}: expected a factor > 0 or 'max'")
+        raise AtrError(f"--speed {text!r}: expected a factor > 0 or 'max'") from None
+    if not 0 < v < float("inf"):
+        raise AtrError(f"--speed {text!r}: expected a factor > 0 or 'max'")
     return v
 
 
@@ -92,11 +99,17 @@ def run(args: argparse.Namespace) -> int:
 
     settings = load_settings(args.config)
     speed = _speed(args.speed)
-    # opened first: a recording that cannot be read (or needs --crs) fails before the node starts
-    recording = open_recording(args.log, crs=resolve_crs(getattr(args, "crs", None), settings),
-                               altitude=settings.recording.altitude)
+    publish_where = "--publish" if args.publish is not None else "links.publish_endpoint"
+    publish = check_optional_endpoint(args.publish if args.publish is not None else settings.links.publish_endpoint,
+                                      publish_where)
+    check_optional_endpoint(getattr(args, "snapshot", None), "--snapshot")
+    if getattr(args, "snapshot", None) is None and args.publish is None:
+        check_optional_endpoint(settings.links.snapshot_endpoint, "links.snapshot_endpoint")
+    # checked first: a recording that cannot be read, holds no tile or needs --crs fails before the node starts
+    crs = resolve_crs(getattr(args, "crs", None), settings)
+    require_sonar_tile(args.log, crs=crs, altitude=settings.recording.altitude)
+    recording = open_recording(args.log, crs=crs, altitude=settings.recording.altitude)
     model, online = build_model(settings, args.model, args.online_calibration, deterministic=True)
-    publish = args.publish if args.publish is not None else settings.links.publish_endpoint
     publish = None if publish in ("", "none") else publish
     snapshot, snapshot_setting = node_snapshot_endpoint(settings, publish_arg=args.publish,
                                                         snapshot_arg=getattr(args, "snapshot", None))
@@ -111,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         records = itertools.islice(recording, skip, None)
         source = IterLink(records, name=str(args.log))
         link = Paced(source, speed) if speed is not None else source
-        progress = _Progress(service, quiet=args.quiet or not sys.stderr.isatty())
+        progress = _Progress(service, quiet=args.no_progress or not sys.stderr.isatty())
         ended = service.run(link, start=skip)
         progress.done()
         wall = time.monotonic() - t0
@@ -123,18 +136,34 @@ def run(args: argparse.Namespace) -> int:
         summary = service.summary()
         summary["wall_s"] = round(wall, 3)
         summary["mpx_per_s"] = round(summary["pixels"] / 1e6 / max(wall, 1e-9), 2)
+        read_text = _recording_counts(recording, summary)
         if args.summary:
-            with open(args.summary, "w") as fh:
+            with atomic_open(args.summary, "w") as fh:
                 json.dump(summary, fh, indent=2, default=str)
         live = sum(1 for c in contacts if c["state"] != "withdrawn")
         print(f"atr-node replay: {summary['tiles_in']} tiles in, {summary['tiles_done']} done, "
               f"{summary['tiles_rejected']} rejected, {dropped_text(summary)}; {live} contacts ({len(contacts)} ever); "
-              f"{summary['mpx_per_s']} Mpx/s over {wall:.1f} s; {summary['model']['short']}", file=sys.stderr)
+              f"{summary['mpx_per_s']} Mpx/s over {wall:.1f} s; {summary['model']['short']}{read_text}",
+              file=sys.stderr)
         return 0 if ended else 130
     finally:
         if progress is not None:
             progress.done()
         service.close()
+
+
+def _recording_counts(recording, summary: dict) -> str:
+    """Put the .atrlog reader's counts (records rejected or skipped as garbage, by reason) in
+    ``summary["recording"]`` and ``summary["rejections"]`` (as ``recording: <reason>``); return
+    them for the end-of-run line (``; 2 records rejected: ...``), or ``""`` when none."""
+    report = getattr(recording, "report", None)
+    if report is None:  # .xtf, .jsf: their readers count their own way
+        return ""
+    summary["recording"] = report()
+    summary.setdefault("rejections", {}).update(
+        {f"recording: {k}": v for k, v in summary["recording"]["reasons"].items()})
+    text = recording.summary_text()
+    return f"; {text}" if text else ""
 
 
 def dropped_text(summary: dict) -> str:
@@ -167,8 +196,9 @@ class _Progress:
             return (f"calibrating on {online.offered} tile(s): waiting for the on-line model, "
                     f"{now - since:.0f} s ({st.tiles_in} tiles in)")
         mpx = st.pixels / 1e6 / max(now - self._t0, 1e-9)
-        return (f"{st.records} records, {st.tiles_in} tiles, {len(self.service.pipeline.contacts)} contacts, "
-                f"{mpx:.1f} Mpx/s")
+        tracker = self.service.pipeline.tracker  # one atomic read of a dict's size: no copy, no race
+        live = len(tracker.live) if tracker is not None else 0
+        return f"{st.records} records, {st.tiles_in} tiles, {live} contacts, {mpx:.1f} Mpx/s"
 
     def _loop(self) -> None:
         while not self._stop.wait(0.5):

@@ -7,8 +7,12 @@ bound), publishes contacts and heartbeats, and snapshots to node.data_dir/state.
 
 On start it resumes from the last snapshot: the records of its previous recording after the
 snapshot's position are replayed first, so no accepted tile's evidence is lost across a
-crash or a restart. SIGTERM drains, snapshots and exits 0. Under systemd (Type=notify) it
-reports READY and feeds the watchdog.
+crash or a restart. SIGTERM (or SIGINT, Ctrl-C) drains, snapshots and exits 0. Under systemd
+(Type=notify) it reports READY and feeds the watchdog.
+
+It logs at INFO by default (``-v`` for debug): the endpoints and socket types, which links
+are configured, the model in use, "waiting for the first tile", the first tile in, and a
+one-line summary at exit (tiles in/done/rejected/dropped, contacts, uptime).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from ..config import load_settings
+from ._endpoints import check_link_endpoints
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +48,11 @@ def run(args: argparse.Namespace) -> int:
     from ..node.service import NodeService
     from .replay import build_model
 
+    for name in ("atr_node", "hw"):  # a daemon says what it does: INFO unless -v asked for more
+        if logging.getLogger(name).getEffectiveLevel() > logging.INFO:
+            logging.getLogger(name).setLevel(logging.INFO)
     settings = load_settings(args.config)
+    check_link_endpoints(settings)  # a bad endpoint fails in one line naming the key, before any socket
     data = Path(settings.node.data_dir)
     state_dir = data / "state"
     rec_dir = data / "recordings"
@@ -65,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
             prev = Path(meta.get("source", ""))
             if prev.is_file():
                 n = 0
-                for rec in itertools.islice(read_atrlog(prev), int(meta["position"]), None):
+                for rec in itertools.islice(read_atrlog(prev, allow_empty=True), int(meta["position"]), None):
                     service.pipeline.feed(rec)
                     n += 1
                 log.warning("resumed from snapshot %s and replayed %d records of %s", meta_folder, n, prev)
@@ -77,12 +86,62 @@ def run(args: argparse.Namespace) -> int:
         link = LinkMux(list(links.values()))
         if not args.no_record:
             link = RecordingLink(link, AtrLogWriter(recording, flush_every=1))
-        log.warning("running: links %s, publishing on %s, recording to %s", ", ".join(links),
-                    settings.links.publish_endpoint, recording)
+        for line in startup_lines(settings, links, service, model_path=args.model, calibrator=calibrator,
+                                  recording=None if args.no_record else recording):
+            log.info("%s", line)
         t0 = time.monotonic()
         service.run_live(link)
         link.shutdown()
-        log.warning("stopped after %.0f s: %s", time.monotonic() - t0, service.summary())
+        summary = service.summary()
+        log.debug("summary: %s", summary)
+        log.info("%s", exit_line(summary, live_contacts=len(service.pipeline.live_contacts()),
+                                 uptime_s=time.monotonic() - t0))
         return 0
     finally:
         service.close()
+
+
+def _zmq_link_text(link) -> str:
+    """``ZeroMQ PULL connected to tcp://127.0.0.1:5550``: the sonar tile link of ``[links]``
+    (:func:`hw.open_links` always connects it; the sonar processor binds)."""
+    return f"ZeroMQ {link.socket_type.upper()} connected to {link.endpoint}"
+
+
+def startup_lines(settings, links: dict, service, *, model_path: str | None, calibrator,
+                  recording: Path | None) -> list[str]:
+    """What ``run`` says at start (INFO): endpoints and socket types, each link configured or
+    not, the contact and snapshot endpoints, the recording and the model in use."""
+    ls = settings.links
+    out = []
+    sonar = links.get("sonar")
+    out.append(f"sonar tiles: {_zmq_link_text(sonar)}" if sonar is not None
+               else "sonar tiles: not configured (links.sonar_endpoint)")
+    out.append(f"NMEA INS: {ls.nmea_url} at {ls.nmea_baudrate} baud" if "nmea" in links
+               else "NMEA INS: not configured (links.nmea_url)")
+    out.append(f"CAN: {ls.can_interface} channel {ls.can_channel}" if "can" in links
+               else "CAN: not configured (links.can_interface)")
+    pub = service.publisher
+    out.append(f"contacts and heartbeats: ZeroMQ PUB bound to {pub.endpoint}" if pub is not None
+               else "contacts and heartbeats: not published (links.publish_endpoint)")
+    snap = service.snapshot_server
+    out.append(f"late joiners (snapshot endpoint): ZeroMQ ROUTER bound to {snap.endpoint}" if snap is not None
+               else "late joiners (snapshot endpoint): off (links.snapshot_endpoint)")
+    out.append(f"recording the links to {recording}" if recording is not None
+               else "not recording the links (--no-record): no resume after a crash")
+    model = f"the model in {model_path}" if model_path else "the shipped model"
+    if calibrator is None:
+        out.append(f"model: {model}; on-line calibration off")
+    else:
+        out.append(f"model: {model} until the on-line calibration from the first {calibrator.n_tiles} tiles "
+                   f"is ready, then the on-line model")
+    return out
+
+
+def exit_line(summary: dict, *, live_contacts: int, uptime_s: float) -> str:
+    """The one line ``run`` logs at exit, from :meth:`NodeService.summary`."""
+    from .replay import dropped_text
+
+    return (f"stopped after {uptime_s:.0f} s: {summary['tiles_in']} tiles in, {summary['tiles_done']} done, "
+            f"{summary['tiles_rejected']} rejected, {dropped_text(summary)}; {live_contacts} live contacts "
+            f"({summary['contacts']} ever); "
+            f"{summary['snapshots']} snapshots; {summary['model']['short']}")

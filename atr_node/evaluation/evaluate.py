@@ -26,9 +26,16 @@ from ..calibration.model import PerformanceModel
 from ..config import Settings
 from ..geo import tile_geometry
 from ..io.atrlog import read_atrlog
-from .methods import SWEEP_FACTORS, Comparison, EvaluationRun, fuse, run_pipeline
+from ..node.service import write_contacts
+from .methods import SWEEP_FACTORS, Comparison, EvaluationRun, FusionResult, run_pipeline
 from .report import Mosaic, plot_belief, plot_mosaic, plot_roc
-from .scoring import RocCurve, read_truth
+from .scoring import RocCurve, read_truth, score_contacts
+
+
+NODE_SOURCE = "node's contacts"
+"""``Row.source`` of the row scoring what the node published."""
+COMPARISON_SOURCE = "comparison pass, recomputed from the node's detections"
+"""``Row.source`` of every method of the paper's figure 6 recomputed on the same detections."""
 
 
 @dataclass
@@ -38,6 +45,7 @@ class Row:
     false_alarms: float
     fa_per_km2: float
     note: str = ""
+    source: str = COMPARISON_SOURCE
 
 
 @dataclass
@@ -89,13 +97,21 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     and3 = cmp.logical("and", best3)
     and4 = cmp.logical("and", rank)
     or4 = cmp.logical("or", rank)
-    ds_nomiss, _ = cmp.fusion(best3, missed=False)
-    ds_miss, _ = cmp.fusion(best3, missed=True)
-    ds_all, contacts_all = cmp.fusion(rank, missed=True, name=f"DS ({', '.join(d.upper() for d in rank)}), "
-                                                           f"with {weakest.upper()} (weakest)")
+    f_nomiss = cmp.fusion(best3, missed=False)
+    f_miss = cmp.fusion(best3, missed=True)
+    f_all = cmp.fusion(rank, missed=True, name=f"DS ({', '.join(d.upper() for d in rank)}), "
+                                              f"with {weakest.upper()} (weakest)")
+    ds_nomiss, ds_miss, ds_all = f_nomiss.curve, f_miss.curve, f_all.curve
     report_bel = settings.fusion.report_bel
 
-    rows = []
+    # first what the node published, scored as `atr-node evaluate --contacts` scores it
+    node = score_contacts(run.node_contacts, truth, bel=report_bel, name=NODE_SOURCE)
+    nb = node.curve.best_pd()
+    rows = [Row(f"DS ({', '.join(d.upper() for d in settings.detectors.enabled)}): the node, as published",
+                node.point.pd, node.point.false_alarms, node.point.false_alarms / km2,
+                f"at Bel >= {report_bel:g}; {node.contacts} live contacts; best Pd {nb:.2f} with "
+                f"{node.curve.fa_at_pd(nb):g} FA (contacts down to Bel {settings.fusion.withdraw_bel:g})",
+                source=NODE_SOURCE)]
     for d in rank:
         tau = min(run.sweep[d], key=lambda t: abs(t - run.model.tau.get(d, t)))
         p = singles[d].at_threshold(tau)
@@ -103,11 +119,14 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     for c in (and3, and4, or4):
         p = c.points[0]
         rows.append(Row(c.name, p.pd, p.false_alarms, p.false_alarms / km2))
-    for c in (ds_nomiss, ds_miss, ds_all):
-        p = c.at_threshold(report_bel)
-        best = c.best_pd()
-        rows.append(Row(c.name, p.pd, p.false_alarms, p.false_alarms / km2,
-                        f"at Bel >= {report_bel:g}; best Pd {best:.2f} with {c.fa_at_pd(best):g} FA"))
+    for f in (f_nomiss, f_miss, f_all):
+        # the operating point from the contacts as the node extracts them; the sweep's best Pd
+        # from regions down to EVAL_BEL_FLOOR (methods.Comparison.fusion says why they differ)
+        p = f.at_node.at_threshold(report_bel)
+        best = f.curve.best_pd()
+        rows.append(Row(f.name, p.pd, p.false_alarms, p.false_alarms / km2,
+                        f"at Bel >= {report_bel:g}; ROC: best Pd {best:.2f} with {f.curve.fa_at_pd(best):g} FA"))
+    agree = _node_agreement(rows[0], rows[-1], f_all, run)
 
     claims = check_claims(singles, run, and3=and3, or4=or4, ds_nomiss=ds_nomiss, ds_miss=ds_miss, ds_all=ds_all,
                           and4=and4)
@@ -115,13 +134,14 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     if figures:
         truth_en = cmp.truth_en
         figs["roc"] = plot_roc(list(singles.values()) + [ds_nomiss, ds_miss, ds_all], [and3, and4, or4],
-                               out / "roc.png", covered_km2=km2, title=f"{name}: ROC (paper figure 6)").name
-        node_contacts = run.node_contacts
-        figs["mosaic"] = plot_mosaic(mosaic, out / "mosaic.png", truth_en=truth_en, contacts=node_contacts,
-                                     title=f"{name}: mosaic, truth (circles) and the node's contacts",
+                               out / "roc.png", covered_km2=km2, title=f"{name}: ROC (paper figure 6)",
+                               fused=[node.curve]).name
+        figs["mosaic"] = plot_mosaic(mosaic, out / "mosaic.png", truth_en=truth_en, contacts=run.node_contacts,
+                                     title=f"{name}: mosaic, truth and the node's contacts",
                                      report_bel=report_bel).name
-        _, grid = fuse(run, tuple(settings.detectors.enabled), missed=True)
-        figs["belief"] = plot_belief(grid, out / "belief.png", truth_en=truth_en,
+        # Bel(T) of all the detectors with missed detections: f_all's grid (the same evidence
+        # as the node's, in another detector order)
+        figs["belief"] = plot_belief(f_all.grid, out / "belief.png", truth_en=truth_en,
                                      title=f"{name}: Bel(T), all detectors with missed-detection evidence").name
         try:
             from ..calibration.plots import plot_pyr
@@ -129,11 +149,33 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
             figs["pyr"] = plot_pyr(run.model, out / "pyr.png").name
         except Exception as exc:  # plotting must not lose the evaluation
             figs["pyr_error"] = str(exc)
+    # what the node published, as `atr-node replay --contacts-out` writes it: the node row can
+    # be reproduced with `atr-node evaluate --contacts contacts.jsonl --truth ...`
+    write_contacts(out / "contacts.jsonl", run.node_contacts)
     result = MissionResult(name, rows, claims, figs, km2, len(truth),
-                           stats={**run.stats, "ranking": rank, "node_contacts": len(run.node_contacts)},
+                           stats={**run.stats, "ranking": rank, "node_contacts": len(run.node_contacts),
+                                  "node_live_contacts": node.contacts, "node_vs_comparison": agree},
                            run=run, comparison=cmp)
     (out / "result.json").write_text(json.dumps(result.to_dict(), indent=2, default=str))
     return result
+
+
+def _node_agreement(node_row: Row, ds_row: Row, f_all: FusionResult, run: EvaluationRun) -> str:
+    """Whether the comparison pass's DS of every detector, at the operating point, is the
+    node's published result, and if not why; for the report.
+
+    It is by construction when one model served every tile (replay, on-line calibration or
+    not: the node holds the first tiles until its on-line model is ready, and the comparison
+    pass runs with the model it ended with). A node that changed model mid-run (a live node
+    switching to the on-line model) fused its first tiles with the other model.
+    """
+    if (node_row.pd, node_row.false_alarms) == (ds_row.pd, ds_row.false_alarms):
+        return "agree"
+    models = {id(u.model) for u in run.units}
+    why = ("the comparison pass used several models" if len(models) > 1 else
+           "the node's pass and the comparison pass fused different detections or models")
+    return (f"differ: the node Pd {node_row.pd:.2f} with {node_row.false_alarms:g} FA, the comparison pass's "
+            f"{f_all.name} Pd {ds_row.pd:.2f} with {ds_row.false_alarms:g} FA ({why})")
 
 
 def _run(settings, log_path, *, model, online, mosaic, progress, sweep: bool) -> EvaluationRun:
@@ -177,7 +219,9 @@ def check_claims(singles: dict[str, RocCurve], run: EvaluationRun, *, and3: RocC
 
 
 def rows_markdown(rows: list[Row]) -> str:
-    lines = ["| method | Pd | false alarms | FA / km² | note |", "|---|---:|---:|---:|---|"]
+    """The rows as a Markdown table; the source column tells the node's published result
+    from the comparison pass."""
+    lines = ["| method | source | Pd | false alarms | FA / km² | note |", "|---|---|---:|---:|---:|---|"]
     for r in rows:
-        lines.append(f"| {r.method} | {r.pd:.2f} | {r.false_alarms:g} | {r.fa_per_km2:.0f} | {r.note} |")
+        lines.append(f"| {r.method} | {r.source} | {r.pd:.2f} | {r.false_alarms:g} | {r.fa_per_km2:.0f} | {r.note} |")
     return "\n".join(lines)

@@ -30,20 +30,25 @@ def _pyplot():
     return plt
 
 
-def _save(plt, fig, path: str | os.PathLike[str]) -> Path:
-    fig.tight_layout()
+def _save(plt, fig, path: str | os.PathLike[str], *, tight: bool = True) -> Path:
+    if tight:
+        fig.tight_layout()
     out = Path(path)
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
 
 
-def _save_map(plt, fig, ax, path: str | os.PathLike[str], title: str) -> Path:
+def _save_map(plt, fig, ax, path: str | os.PathLike[str], title: str, *, tight: bool = True) -> Path:
     """A map in the mission frame: axis labels, title, saved."""
+    _map_labels(ax, title)
+    return _save(plt, fig, path, tight=tight)
+
+
+def _map_labels(ax, title: str) -> None:
     ax.set_xlabel("east (m, mission frame)")
     ax.set_ylabel("north (m)")
     ax.set_title(title)
-    return _save(plt, fig, path)
 
 
 class Mosaic:
@@ -94,25 +99,113 @@ def _display(img: np.ndarray) -> np.ndarray:
     return d
 
 
+LABEL_FONT_PT = 7.0
+"""Contact labels on the mosaic."""
+
+
 def plot_mosaic(mosaic: Mosaic, path: str | os.PathLike[str], *, truth_en: np.ndarray, contacts: Sequence[dict],
-                title: str, report_bel: float) -> Path:
+                title: str, report_bel: float, max_labels: int = 60) -> Path:
+    """The mosaic with the truth targets and the node's contacts at Bel(T) >= ``report_bel``.
+
+    Contacts matched to a target (ICD section 5) are green, false alarms red; targets that no
+    reported contact matches are magenta ("missed"). Labels (``id: Bel``) must stay readable
+    at mission scale, where a hard seabed gives hundreds of contacts: the matched contacts
+    are labelled first, then the others by decreasing Bel(T); each label takes the first of a
+    few places around its contact (farther ones with a leader line) where it overlaps no
+    label already placed, and is left out when none is free or ``max_labels`` are placed.
+    How many were left out is in the legend: every contact is in ``contacts.jsonl``.
+    """
+    from .scoring import match
+
     plt = _pyplot()
     img, ext = mosaic.raster()
-    fig, ax = plt.subplots(figsize=(9, 9))
+    # a fixed layout (no tight_layout after the labels are placed: it would move the axes and
+    # the labels' pixel boxes with them); the legend below the map, where it hides nothing
+    width_in, left_in, right_in, top_in, bottom_in = 10.0, 1.1, 0.3, 0.5, 1.6
+    aspect = (ext[3] - ext[2]) / max(ext[1] - ext[0], 1e-9)
+    ax_w_in = width_in - left_in - right_in
+    ax_h_in = min(max(ax_w_in * aspect, 3.0), 14.0)  # a long single leg: no 1-m-tall figure
+    height_in = ax_h_in + top_in + bottom_in
+    fig = plt.figure(figsize=(width_in, height_in))
+    ax = fig.add_axes((left_in / width_in, bottom_in / height_in, ax_w_in / width_in, ax_h_in / height_in))
+    _map_labels(ax, title)
     ax.imshow(_display(img), origin="lower", extent=ext, cmap="copper", interpolation="nearest")
-    if len(truth_en):
-        ax.scatter(truth_en[:, 0], truth_en[:, 1], s=160, facecolors="none", edgecolors="cyan", linewidths=1.5,
-                   label="truth target")
+    ax.ticklabel_format(useOffset=False, style="plain")  # metres of the frame, not "+4.881e6"
+    truth_en = np.asarray(truth_en, dtype=np.float64).reshape(-1, 2)
     live = [c for c in contacts if c["state"] != "withdrawn"]
     hi = [c for c in live if c["bel"] >= report_bel]
-    if hi:
-        ax.scatter([c["east_m"] for c in hi], [c["north_m"] for c in hi], marker="+", s=120, c="red",
-                   linewidths=1.5, label=f"contact, Bel(T) >= {report_bel:g}")
-        for c in hi:
-            ax.annotate(f"{c['id']}: {c['bel']:.2f}", (c["east_m"], c["north_m"]), xytext=(4, 4),
-                        textcoords="offset points", fontsize=7, color="yellow")
-    ax.legend(loc="upper right", fontsize=8)
-    return _save_map(plt, fig, ax, path, title)
+    c_en = np.array([(c["east_m"], c["north_m"]) for c in hi]).reshape(-1, 2)
+    pairs = match(c_en, truth_en)
+    hit_c = {i for i, _ in pairs}
+    hit_t = {k for _, k in pairs}
+    found = np.array([k in hit_t for k in range(len(truth_en))], dtype=bool)
+    if found.any():
+        ax.scatter(truth_en[found, 0], truth_en[found, 1], s=200, facecolors="none", edgecolors="cyan",
+                   linewidths=1.5, label=f"target, found ({found.sum()})")
+    if (~found).any():
+        ax.scatter(truth_en[~found, 0], truth_en[~found, 1], s=200, facecolors="none", edgecolors="magenta",
+                   linewidths=2.0, linestyle="--", label=f"target, missed ({(~found).sum()})")
+    tp = np.array([i in hit_c for i in range(len(hi))], dtype=bool)
+    if tp.any():
+        ax.scatter(c_en[tp, 0], c_en[tp, 1], marker="+", s=110, c="lime", linewidths=1.8,
+                   label=f"contact on a target, Bel(T) >= {report_bel:g} ({tp.sum()})")
+    if (~tp).any():
+        ax.scatter(c_en[~tp, 0], c_en[~tp, 1], marker="x", s=35, c="red", linewidths=1.2,
+                   label=f"false alarm, Bel(T) >= {report_bel:g} ({(~tp).sum()})")
+    order = sorted(range(len(hi)), key=lambda i: (i not in hit_c, -hi[i]["bel"], hi[i]["id"]))
+    ax.set_xlim(ext[0], ext[1])
+    ax.set_ylim(ext[2], ext[3])
+    placed = _place_labels(fig, ax, [(c_en[i], f"{hi[i]['id']}: {hi[i]['bel']:.2f}", i in hit_c) for i in order],
+                           max_labels=max_labels)
+    left = len(hi) - placed
+    handles, labels = ax.get_legend_handles_labels()
+    if left:
+        handles.append(plt.Line2D([], [], linestyle="none"))
+        labels.append(f"{left} of {len(hi)} contacts not labelled (crowded)")
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=9, frameon=False)
+    return _save(plt, fig, path, tight=False)
+
+
+def _place_labels(fig, ax, items: Sequence[tuple[np.ndarray, str, bool]], *, max_labels: int) -> int:
+    """Place text labels next to points without overlaps; returns how many were placed.
+
+    ``items``: (east/north point, text, on a target), in order of priority. Each label tries
+    offsets around its point, nearest first, and takes the first whose box (in display
+    pixels) overlaps no label placed before and lies inside the axes; the farther offsets get
+    a leader line to the point.
+    """
+    fig.canvas.draw()  # the transforms below need the final layout of the axes
+    to_px = ax.transData.transform
+    box = ax.get_window_extent()
+    px_per_pt = fig.dpi / 72.0
+    h_px = LABEL_FONT_PT * 1.25 * px_per_pt
+    near = [(5, 4), (5, -4 - LABEL_FONT_PT * 1.25), (-5, 4), (-5, -4 - LABEL_FONT_PT * 1.25)]
+    far = [(dx, dy) for r in (18, 30) for dx, dy in ((r, r), (r, -r), (-r, r), (-r, -r), (0, r), (0, -r))]
+    taken: list[tuple[float, float, float, float]] = []
+    for xy, text, on_target in items:
+        if len(taken) >= max_labels:
+            break
+        x, y = to_px(xy)
+        w_px = len(text) * LABEL_FONT_PT * 0.62 * px_per_pt
+        for dx_pt, dy_pt in near + far:
+            # the label's box: left-aligned to the right of the point, right-aligned to the left
+            x0 = x + dx_pt * px_per_pt - (w_px if dx_pt < 0 else (w_px / 2 if dx_pt == 0 else 0.0))
+            y0 = y + dy_pt * px_per_pt
+            b = (x0 - 1, y0 - 1, x0 + w_px + 1, y0 + h_px + 1)
+            if b[0] < box.x0 or b[2] > box.x1 or b[1] < box.y0 or b[3] > box.y1:
+                continue
+            if any(b[0] < t[2] and t[0] < b[2] and b[1] < t[3] and t[1] < b[3] for t in taken):
+                continue
+            taken.append(b)
+            leader = (dx_pt, dy_pt) not in near
+            ax.annotate(text, xy, xytext=(dx_pt, dy_pt), textcoords="offset points", fontsize=LABEL_FONT_PT,
+                        color="lime" if on_target else "yellow",
+                        ha="right" if dx_pt < 0 else ("center" if dx_pt == 0 else "left"), va="bottom",
+                        bbox=dict(boxstyle="square,pad=0.1", fc="black", ec="none", alpha=0.55),
+                        arrowprops=dict(arrowstyle="-", color="white", lw=0.6, alpha=0.8) if leader else None)
+            break
+    return len(taken)
 
 
 def belief_raster(grid: EvidenceGrid) -> tuple[np.ndarray, tuple[float, float, float, float]]:
@@ -161,30 +254,43 @@ def plot_belief(grid: EvidenceGrid, path: str | os.PathLike[str], *, truth_en: n
 
 
 def plot_roc(curves: Sequence[RocCurve], points: Sequence[RocCurve], path: str | os.PathLike[str], *,
-             covered_km2: float, title: str) -> Path:
-    """Left: each detector alone; right: the fusion schemes and the logical operators."""
+             covered_km2: float, title: str, fused: Sequence[RocCurve] = ()) -> Path:
+    """Left: each detector alone; right: the fusion schemes and the logical operators.
+
+    ``curves`` whose name starts with "DS", and every curve of ``fused`` (e.g. the node's own
+    contacts), go to the fusion panel. With no single-detector curve the figure has the
+    fusion panel only (``atr-node evaluate --contacts``)."""
     plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), sharey=True)
     singles = [c for c in curves if not c.name.startswith("DS")]
-    fused = [c for c in curves if c.name.startswith("DS")]
+    fused = [c for c in curves if c.name.startswith("DS")] + list(fused)
+    if singles:
+        fig, axes = plt.subplots(1, 2, figsize=(13, 5.5), sharey=True)
+        panels = ((axes[0], singles, "each detector alone"), (axes[1], fused, "fusion"))
+    else:
+        fig, ax = plt.subplots(figsize=(7, 5.5))
+        axes = [ax]
+        panels = ((ax, fused, "fusion"),)
     styles = {0: ":", 1: "-", 2: "-."}
-    for ax, group, ttl in ((axes[0], singles, "each detector alone"), (axes[1], fused, "fusion")):
+    for ax, group, ttl in panels:
         for i, c in enumerate(group):
             fa, pd = c.false_alarms, c.pd
             order = np.lexsort((pd, fa))
+            node = not c.name.startswith("DS") and group is fused  # the node's contacts: drawn boldest
             ax.step(fa[order], np.maximum.accumulate(pd[order]), where="post", label=c.name,
-                    linestyle=styles.get(i, "-") if group is fused else "-", linewidth=1.6)
+                    linestyle=styles.get(i, "-") if group is fused and not node else "-",
+                    linewidth=2.6 if node else 1.6, color="black" if node else None)
         ax.set_title(ttl)
         ax.set_xlabel("false alarms (number)")
         ax.grid(alpha=0.3)
     markers = ["s", "^", "v", "o"]
     for i, p in enumerate(points):
         q = p.points[0]
-        axes[1].plot([q.false_alarms], [q.pd], markers[i % len(markers)], markersize=9, label=p.name)
+        axes[-1].plot([q.false_alarms], [q.pd], markers[i % len(markers)], markersize=9, label=p.name)
     axes[0].set_ylabel("probability of detection")
     for ax in axes:
         ax.set_ylim(-0.02, 1.05)
-        ax.legend(fontsize=7, loc="lower right")
+        if ax.get_legend_handles_labels()[0]:  # an empty legend is a matplotlib warning
+            ax.legend(fontsize=7, loc="lower right")
         if covered_km2 > 0:
             sec = ax.secondary_xaxis("top", functions=(lambda x: x / covered_km2, lambda y: y * covered_km2))
             sec.set_xlabel("false alarms per km$^2$")

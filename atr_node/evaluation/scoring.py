@@ -156,6 +156,74 @@ def operating_point(name: str, contacts_en: np.ndarray, truth_en: np.ndarray, *,
     return RocCurve(name, (OperatingPoint(0.0, len(m) / max(n_t, 1), n - len(m), n, len(m)),), n_t)
 
 
+@dataclass(frozen=True)
+class ContactScore:
+    """Published contacts scored against truth (:func:`score_contacts`)."""
+
+    curve: RocCurve
+    """ROC sweeping Bel(T) over the live contacts (they reach down to ``fusion.withdraw_bel``)."""
+    point: OperatingPoint
+    """At Bel(T) >= ``threshold_bel``."""
+    threshold_bel: float
+    targets: int
+    contacts: int
+    """Live (not withdrawn) contacts, at any Bel(T)."""
+
+    def summary(self) -> dict[str, Any]:
+        """The fields of ``evaluation.json`` (``atr-node evaluate --contacts``)."""
+        best = self.curve.best_pd()
+        return {"targets": self.targets, "contacts": self.contacts, "threshold_bel": self.threshold_bel,
+                "pd": self.point.pd, "false_alarms": self.point.false_alarms, "matched": self.point.matched,
+                "best_pd": best, "fa_at_best_pd": self.curve.fa_at_pd(best)}
+
+
+def score_contacts(contacts: Sequence[dict[str, Any]], truth: Sequence[TruthTarget], *, bel: float,
+                   name: str = "node's contacts") -> ContactScore:
+    """Score contact messages (ICD section 3) against truth (ICD section 5).
+
+    The one scoring of a node's published contacts: ``atr-node evaluate --contacts`` /
+    ``--subscribe`` and the demo's node row both call it, so the two cannot disagree.
+
+    Parameters
+    ----------
+    contacts : sequence of dict
+        The final message of each contact (``--contacts-out``, or the latest per id from the
+        PUB socket); withdrawn ones are left out.
+    truth : sequence of TruthTarget
+        The targets (:func:`read_truth`).
+    bel : float
+        The operating point: contacts with Bel(T) >= ``bel`` are reported.
+    name : str
+        The ROC curve's name.
+
+    Returns
+    -------
+    ContactScore
+        Pd and false alarms at ``bel``, and the ROC over the live contacts.
+    """
+    live = [c for c in contacts if c.get("state") != "withdrawn"]
+    # positions from lat/lon, the only frame a contact file shares with the truth file
+    if truth:
+        lat0, lon0 = truth[0].lat_deg, truth[0].lon_deg
+    elif live:
+        lat0, lon0 = live[0]["lat_deg"], live[0]["lon_deg"]
+    else:
+        lat0, lon0 = 0.0, 0.0
+    t_en = np.column_stack(local_en(np.array([t.lat_deg for t in truth]), np.array([t.lon_deg for t in truth]),
+                                    lat0, lon0)) if truth else np.zeros((0, 2))
+    c_en = np.column_stack(local_en(np.array([c["lat_deg"] for c in live]), np.array([c["lon_deg"] for c in live]),
+                                    lat0, lon0)) if live else np.zeros((0, 2))
+    scores = [float(c["bel"]) for c in live]
+    curve = roc(name, c_en, scores, t_en)
+    # the operating point matched directly, not read off the curve: exact at any ``bel``, and
+    # independent of the curve's decimation on a very long contact list
+    keep = np.array(scores, dtype=np.float64) >= bel
+    m = match(c_en[keep], t_en)
+    n = int(keep.sum())
+    point = OperatingPoint(float(bel), len(m) / max(len(truth), 1), n - len(m), n, len(m))
+    return ContactScore(curve, point, float(bel), len(truth), len(live))
+
+
 def contacts_from_jsonl(path: str | Path) -> list[dict[str, Any]]:
     """Contacts written by ``--contacts-out`` (final states); errors name the line."""
     import json

@@ -25,8 +25,8 @@ from typing import Callable, Iterable
 import numpy as np
 
 from ..geo import MissionFrame
-from ..geo.georef import across_track_unit
-from ..records.tile import Tile
+from ..geo.georef import ping_frame
+from ..records.tile import Tile, TileNav
 
 ZONES = ("water column", "first return", "seabed")
 
@@ -99,22 +99,15 @@ def zone_of(slant_range_m: float, altitude_m: float, band_m: float) -> str:
 
 
 def _side_frame(p: SidePings, frame: MissionFrame):
+    """(east, north, ue, un, grid heading) per ping (:func:`~atr_node.geo.georef.ping_frame`,
+    as the forward georeferencing), NaN where a ping has no nav."""
     ok = np.isfinite(p.lat_deg) & np.isfinite(p.lon_deg) & np.isfinite(p.heading_deg)
-    e = np.full(len(p), np.nan)
-    n = np.full(len(p), np.nan)
-    ue = np.full(len(p), np.nan)
-    un = np.full(len(p), np.nan)
-    scale = np.full(len(p), np.nan)
-    hg = np.full(len(p), np.nan)
+    out = [np.full(len(p), np.nan) for _ in range(5)]
     if ok.any():
-        ee, nn = frame.to_frame(p.lat_deg[ok], p.lon_deg[ok])
-        conv, sc = frame.grid_factors(p.lat_deg[ok], p.lon_deg[ok])
-        e[ok], n[ok] = np.ravel(ee), np.ravel(nn)
-        hg[ok] = p.heading_deg[ok] - np.ravel(conv)
-        u = across_track_unit(hg[ok], p.side)
-        ue[ok], un[ok] = u
-        scale[ok] = np.ravel(sc)
-    return e, n, ue, un, scale, np.radians(hg)
+        nav = TileNav(p.lat_deg[ok], p.lon_deg[ok], p.heading_deg[ok], np.zeros(int(ok.sum())))
+        for o, v in zip(out, ping_frame(nav, p.side, frame)):
+            o[ok] = v
+    return out
 
 
 def locate_contacts(pings: Iterable[SidePings], contacts: Iterable[dict], frame: MissionFrame, *,
@@ -146,9 +139,11 @@ def locate_contacts(pings: Iterable[SidePings], contacts: Iterable[dict], frame:
     for c in contacts:
         ce, cn = (float(np.ravel(v)[0]) for v in frame.to_frame(c["lat_deg"], c["lon_deg"]))
         best = None
-        for p, e, n, ue, un, scale, hg in sides:
+        for p, e, n, ue, un, hg in sides:
             de, dn = ce - e, cn - n
-            across = (de * ue + dn * un) / scale  # forward: offset = r * scale * unit (geo.georef)
+            # forward: offset = r * (ue, un), the unit vector scaled by the grid scale factor k:
+            # the dot product is r k^2, and k^2 = ue^2 + un^2
+            across = (de * ue + dn * un) / (ue * ue + un * un)
             along = de * np.sin(hg) + dn * np.cos(hg)
             cand = np.where(np.isfinite(across) & (across >= 0), np.abs(along), np.inf)
             if not cand.size:
@@ -168,18 +163,21 @@ def locate_contacts(pings: Iterable[SidePings], contacts: Iterable[dict], frame:
 
 
 def slant_waterfall(tiles: Iterable[Tile], side: str) -> tuple[np.ndarray, float, float]:
-    """(pings, samples) slant-range pixels of one side as recorded, with range0_m and dr_m."""
-    sel = [t for t in tiles if t.side == side and t.slant]
+    """(pings, samples) pixels of one side as recorded (slant range, or ground range for a
+    tile recorded so), with range0_m and dr_m of the common axis: every tile of the side, in
+    order, so rows are the pings of :meth:`SidePings.from_tiles`; a tile on another spacing
+    is placed by nearest sample."""
+    sel = [t for t in tiles if t.side == side]
     if not sel:
         return np.zeros((0, 0), np.float32), 0.0, 1.0
     dr = sel[0].dr_m
     r0 = min(t.range0_m for t in sel)
-    cols = max(int(round((t.range0_m - r0) / dr)) + t.cols for t in sel)
+    cols = max(int(round((t.range0_m + t.dr_m * (t.cols - 1) - r0) / dr)) + 1 for t in sel)
     out = np.full((sum(t.rows for t in sel), cols), np.nan, np.float32)
     row = 0
     for t in sel:
-        c0 = int(round((t.range0_m - r0) / dr))
-        out[row:row + t.rows, c0:c0 + t.cols] = t.pixels
+        dest = np.rint((t.range0_m + t.dr_m * np.arange(t.cols) - r0) / dr).astype(np.int64)
+        out[row:row + t.rows, dest] = t.pixels
         row += t.rows
     return out, r0, dr
 

@@ -71,14 +71,20 @@ def tile_geometry(tile: Tile, frame: MissionFrame, nav: TileNav | None = None) -
         raise GeometryError(f"{tile.ident}: no nav in the tile and none given")
     if len(nav) != tile.rows:
         raise GeometryError(f"{tile.ident}: nav has {len(nav)} rows, tile has {tile.rows}")
+    e, n, ue, un, hg = ping_frame(nav, tile.side, frame)
+    return TileGeometry(east_m=e, north_m=n, ue=ue, un=un, ranges_m=tile.ranges_m, heading_grid_rad=hg)
+
+
+def ping_frame(nav: TileNav, side: str, frame: MissionFrame
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per ping: (east_m, north_m) in ``frame``, the across-track direction to ``side``
+    scaled by the grid scale factor (ue, un), and the grid heading in radians; each (rows,)."""
     e, n = frame.to_frame(nav.lat_deg, nav.lon_deg)
     conv, scale = frame.grid_factors(nav.lat_deg, nav.lon_deg)
     hg = nav.heading_deg - conv
-    ue, un = across_track_unit(hg, tile.side)
-    return TileGeometry(east_m=np.asarray(e, dtype=np.float64).reshape(-1),
-                        north_m=np.asarray(n, dtype=np.float64).reshape(-1),
-                        ue=(ue * scale).reshape(-1), un=(un * scale).reshape(-1),
-                        ranges_m=tile.ranges_m, heading_grid_rad=np.radians(hg).reshape(-1))
+    ue, un = across_track_unit(hg, side)
+    return (np.asarray(e, dtype=np.float64).reshape(-1), np.asarray(n, dtype=np.float64).reshape(-1),
+            (ue * scale).reshape(-1), (un * scale).reshape(-1), np.radians(hg).reshape(-1))
 
 
 def pixel_latlon(tile: Tile, frame: MissionFrame, rows, cols) -> tuple[np.ndarray, np.ndarray]:

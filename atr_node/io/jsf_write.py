@@ -36,9 +36,9 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from ..errors import TileError
 from ..records.tile import Tile
 from .atrlog import LogRecord
+from .ping_writer import PairedPingWriter
 from .jsf import (ANALYTIC, ENVELOPE, HEADER, NMEA, PING_FIELDS, SONAR, START_MARKER, VALID_ALTITUDE,
                   VALID_HEADING, VALID_POSITION, VALID_SPEED)
 from .xtf_packets import KNOT_M_S
@@ -74,7 +74,7 @@ def _weighting(peak: float, limit: int) -> int:
     return int(min(15, max(-16, math.floor(math.log2(limit / peak)))))
 
 
-class JsfWriter:
+class JsfWriter(PairedPingWriter):
     """Write tiles (and NMEA sentences) to a JSF file; a context manager, or call :meth:`close`.
 
     Parameters
@@ -108,49 +108,12 @@ class JsfWriter:
         ms = round(t * 1000.0)
         self.write_message(NMEA, struct.pack("<iiB3x", ms // 1000, ms % 1000, 1) + sentence.rstrip(b"\r\n"))
 
-    def write_tile(self, tile: Tile) -> None:
-        """Queue one tile; it is written with its other side when that arrives with the same pings."""
-        self.stats.tiles += 1
-        p = self._pending
-        if (p is not None and p.side != tile.side and p.rows == tile.rows
-                and np.array_equal(p.ping_time, tile.ping_time)):
-            self._write_pings({p.side: p, tile.side: tile})
-            self._pending = None
-            return
-        if p is not None:
-            self.stats.unpaired_tiles += 1
-            self._write_pings({p.side: p})
-        self._pending = tile
-
-    def write_record(self, rec: LogRecord) -> None:
-        """A record of an .atrlog: sonar tiles and NMEA sentences are written, CAN counted in ``skipped``."""
+    # -- hooks of PairedPingWriter -------------------------------------------------------------
+    def _write_link(self, rec: LogRecord) -> bool:
         if rec.link == "nmea":
             self.write_nmea(rec.t, bytes(rec.msg))
-            return
-        if rec.link != "sonar":
-            self.stats.skipped[rec.link] += 1
-            return
-        try:
-            tile = Tile.from_map(rec.msg)
-        except TileError as exc:
-            self.stats.rejected.append(f"record at byte {rec.offset}: {exc}")
-            return
-        self.write_tile(tile)
-
-    def close(self) -> None:
-        if self._fh.closed:
-            return
-        if self._pending is not None:
-            self.stats.unpaired_tiles += 1
-            self._write_pings({self._pending.side: self._pending})
-            self._pending = None
-        self._fh.close()
-
-    def __enter__(self) -> "JsfWriter":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+            return True
+        return False
 
     # -- messages ----------------------------------------------------------------------------
     def _samples(self, row: np.ndarray) -> tuple[bytes, int]:

@@ -31,15 +31,16 @@ from collections import Counter
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Iterable
 
 import numpy as np
 from pyxtf.xtf_ctypes import XTFFileHeader, XTFPingChanHeader, XTFPingHeader
 
-from ..errors import ConfigError, TileError
+from ..errors import ConfigError
 from .crs import projection
 from ..records.tile import Tile
 from .atrlog import LogRecord
+from .ping_writer import PairedPingWriter
 from .xtf_packets import KNOT_M_S, NOTE_PREFIX
 
 SOUND_VELOCITY_ONE_WAY = 750.0
@@ -69,7 +70,7 @@ def _samples(tile: Tile, dtype: np.dtype) -> np.ndarray:
     return np.clip(np.rint(np.nan_to_num(tile.pixels, nan=0.0)), info.min, info.max).astype(dtype)
 
 
-class XtfWriter:
+class XtfWriter(PairedPingWriter):
     """Write tiles to an XTF file; use as a context manager or call :meth:`close`.
 
     Parameters
@@ -94,50 +95,14 @@ class XtfWriter:
         self._ping_number = 0
         self.stats = XtfWriteStats()
 
-    # -- public ------------------------------------------------------------------------------
-    def write_tile(self, tile: Tile) -> None:
-        """Queue one tile; it is written with its other side when that arrives with the same pings."""
+    # -- hooks of PairedPingWriter -------------------------------------------------------------
+    def _before_tile(self, tile: Tile) -> None:
         if self._format is None:
             self._write_header(tile)
-        self.stats.tiles += 1
-        p = self._pending
-        if p is not None and p.side != tile.side and p.rows == tile.rows and np.array_equal(p.ping_time, tile.ping_time):
-            self._write_pings({p.side: p, tile.side: tile})
-            self._pending = None
-            return
-        if p is not None:
-            self.stats.unpaired_tiles += 1
-            self._write_pings({p.side: p})
-        self._pending = tile
 
-    def write_record(self, rec: LogRecord) -> None:
-        """A record of an .atrlog: sonar tiles are written, other links counted in ``skipped``."""
-        if rec.link != "sonar":
-            self.stats.skipped[rec.link] += 1
-            return
-        try:
-            tile = Tile.from_map(rec.msg)
-        except TileError as exc:
-            self.stats.rejected.append(f"record at byte {rec.offset}: {exc}")
-            return
-        self.write_tile(tile)
-
-    def close(self) -> None:
-        if self._fh.closed:
-            return
-        if self._pending is not None:
-            self.stats.unpaired_tiles += 1
-            self._write_pings({self._pending.side: self._pending})
-            self._pending = None
+    def _before_close(self) -> None:
         if self._format is None:
             self._fh.write(bytes(self._file_header(None)))
-        self._fh.close()
-
-    def __enter__(self) -> "XtfWriter":
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
 
     # -- packets -----------------------------------------------------------------------------
     def _file_header(self, tile: Tile | None) -> XTFFileHeader:

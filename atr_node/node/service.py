@@ -21,11 +21,12 @@ import signal
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable
 
 from ..calibration.model import PerformanceModel
 from ..config import Settings
 from ..errors import AtrError
+from ..io.atomic import atomic_open
 from ..io.atrlog import LogRecord
 from . import state as node_state
 from . import wire
@@ -129,7 +130,8 @@ class NodeService:
 
     def install_signal_handlers(self) -> None:
         def stop(signum, _frame):
-            log.warning("signal %d: draining and snapshotting", signum)
+            # an asked-for stop is normal operation, not a warning
+            log.info("%s: draining, snapshotting and stopping", signal.Signals(signum).name)
             self._stop.set()
 
         signal.signal(signal.SIGTERM, stop)
@@ -181,12 +183,19 @@ class NodeService:
         self._start_heartbeat()
         self.notifier.ready()
         every = self.settings.node.snapshot_every_tiles
+        tiles_before = self.pipeline.stats.tiles_in  # restored by a resume: the first tile is the first of this run
+        log.info("running: waiting for the first tile")
         try:
             while not self._stop.is_set() and not link.at_end:
                 rec = link.recv(timeout=0.01 if self.pipeline.inflight else poll_s)
                 if rec is not None:
                     self.pipeline.feed(rec)
                     self.position += 1
+                    if tiles_before is not None and self.pipeline.stats.tiles_in > tiles_before:
+                        tiles_before = None  # said once
+                        m = rec.msg if isinstance(rec.msg, dict) else {}
+                        log.info("first tile in: %s/leg %s/%s, seq %s", m.get("mission"), m.get("leg"),
+                                 m.get("side"), m.get("seq"))
                 else:
                     self.pipeline.tick(time.time())
                 self._after_step(every)
@@ -301,20 +310,18 @@ class NodeService:
 
 
 def write_contacts(path: str | Path, contacts: list[dict]) -> None:
-    """``--contacts-out``: the final state of every contact, one JSON object per line."""
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.tmp")
-    with open(tmp, "w") as fh:
+    """``--contacts-out``: the final state of every contact, one JSON object per line, written
+    atomically (whole or not at all)."""
+    with atomic_open(path, "w") as fh:
         for c in contacts:
             fh.write(json.dumps(c, sort_keys=True) + "\n")
-    tmp.replace(p)
 
 
 def write_detections(path: str | Path, pipeline: Pipeline) -> None:
-    """``--detections-out``: every detection the grid received, one JSON object per line."""
-    p = Path(path)
+    """``--detections-out``: every detection the grid received, one JSON object per line,
+    written atomically (whole or not at all)."""
     frame = pipeline.frame
-    with open(p, "w") as fh:
+    with atomic_open(path, "w") as fh:
         for r in pipeline.grid.detections:
             lat, lon = frame.to_latlon(r.east_m, r.north_m) if frame is not None else (float("nan"),) * 2
             fh.write(json.dumps({"detector": r.detector, "leg": r.leg, "t": r.t, "lat_deg": float(lat),
@@ -322,7 +329,7 @@ def write_detections(path: str | Path, pipeline: Pipeline) -> None:
                                  "gamma": r.gamma, "confidence": r.confidence}) + "\n")
 
 
-def open_recording(path: str | Path, *, crs: str = "", altitude: str = "auto") -> Iterator[LogRecord]:
+def open_recording(path: str | Path, *, crs: str = "", altitude: str = "auto") -> Iterable[LogRecord]:
     """Records of an .atrlog or an .xtf file, for replay; ``crs``: of XTF positions in
     projected metres (``--crs``, :mod:`atr_node.io.crs`). A file that needs it and has none
     fails here, before the first record. ``altitude``: of XTF tiles (``recording.altitude``)."""
@@ -335,6 +342,6 @@ def open_recording(path: str | Path, *, crs: str = "", altitude: str = "auto") -
         from ..io.jsf import iter_jsf_records
 
         return iter(iter_jsf_records(p, crs=crs, altitude=altitude))
-    from ..io.atrlog import read_atrlog
+    from ..io.atrlog import AtrLogReader
 
-    return read_atrlog(p)
+    return AtrLogReader(p)  # iterable, and keeps its counts (records rejected, garbage) for the summary

@@ -158,6 +158,8 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
                 for k, arr in d[name].items():
                     arrays[f"strip_{side}_{name}_{k}"] = arr
     meta["held"] = len(p.merger._held)
+    # the first-return band measured last per side: a later tile too short to measure uses it
+    meta["band_by_side"] = dict(p.merger._band_by_side)
     for i, tile in enumerate(p.merger._held):
         arrays[f"held_{i}"] = np.frombuffer(tile.pack(), dtype=np.uint8)
     # replay: tiles held for the on-line calibration (with their nav; float32 keeps NaN pixels)
@@ -207,6 +209,7 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     from .pipeline import _trackers
 
     p.merger._held.clear()
+    p.merger._band_by_side = {str(k): float(v) for k, v in meta.get("band_by_side", {}).items()}
     for i in range(int(meta.get("held", 0))):
         p.merger._held.append(Tile.unpack(a[f"held_{i}"].tobytes()))
     p.hold_for_calibration([Tile.unpack(a[f"cal_held_{i}"].tobytes()) for i in range(int(meta.get("cal_held", 0)))])

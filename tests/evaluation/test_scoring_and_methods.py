@@ -94,15 +94,17 @@ def test_evaluate_log_compares_every_method_on_the_same_detections(small_mission
     names = [r.method for r in res.rows]
     assert sum(n.endswith("alone") for n in names) == 4
     assert any(n.startswith("AND") for n in names) and any(n.startswith("OR") for n in names)
-    assert sum(n.startswith("DS") for n in names) == 3
+    # the node's own row first, then the comparison pass's three fusions
+    assert res.rows[0].source == "node's contacts" and "the node, as published" in names[0]
+    assert sum(n.startswith("DS") for n in names[1:]) == 3
     for r in res.rows:
         assert 0.0 <= r.pd <= 1.0 and r.false_alarms >= 0
     # OR of all four finds at least what each AND finds (same detections, same gate)
-    by = {r.method.split(" (")[0]: r for r in res.rows if not r.method.endswith("alone")}
+    by = {r.method.split(" (")[0]: r for r in res.rows[1:] if not r.method.endswith("alone")}
     assert by["OR"].pd >= by["AND"].pd - 1e-12
     assert set(res.claims) == {"1 highest Pd", "2 fewer FA than AND of 3 best", "3 OR far worse",
                                "4 weakest does not degrade"}
-    for f in ("roc.png", "mosaic.png", "belief.png", "result.json"):
+    for f in ("roc.png", "mosaic.png", "belief.png", "result.json", "contacts.jsonl"):
         assert (tmp_path / f).stat().st_size > 1000
     back = json.loads((tmp_path / "result.json").read_text())
     assert back["targets"] == 5 and len(back["rows"]) == len(res.rows)
@@ -140,7 +142,7 @@ def test_demo_command_runs_start_to_end_on_a_small_mission(tmp_path):
                        timeout=600)
     assert r.returncode == 0, r.stderr
     report = (tmp_path / "report.md").read_text()
-    assert "mission-1-silt" in report and "| method | Pd |" in report
+    assert "mission-1-silt" in report and "| method | source | Pd |" in report
     for png in ("mosaic.png", "roc.png", "belief.png"):
         assert f"mission-1-silt/{png}" in report and (tmp_path / "mission-1-silt" / png).is_file()
     assert "claim 1 highest Pd" in r.stdout

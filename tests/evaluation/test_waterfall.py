@@ -65,3 +65,18 @@ def test_zones() -> None:
     assert zone_of(5.49, 4.0, 1.5) == "first return"
     assert zone_of(5.5, 4.0, 1.5) == "seabed"
     assert zone_of(10.0, float("nan"), 1.5) == "water column"  # no altitude: nothing can be said to be seabed
+
+
+def test_waterfall_rows_are_the_pings_of_every_tile_of_the_side() -> None:
+    """Rows of the drawn waterfall stay those of :class:`SidePings` (a tile on another spacing,
+    or recorded in ground range, is placed, never skipped)."""
+    from atr_node.evaluation.waterfall import slant_waterfall
+
+    a = _slant_tile("stbd", rows=10, cols=50)
+    b = a.replace(pixels=np.full((10, 25), 2.0, np.float32), dr_m=0.2, slant=False)
+    img, r0, dr = slant_waterfall([a, b], "stbd")
+    assert img.shape[0] == len(SidePings.from_tiles([a, b], "stbd")) == 20
+    assert r0 == pytest.approx(0.05) and dr == pytest.approx(0.1)
+    assert np.all(img[:10, :50] == 1.0)
+    # b's samples at 0.05 + 0.2 k land on every second column of the 0.1 m axis
+    assert np.all(img[10:, 0:50:2] == 2.0) and np.all(np.isnan(img[10:, 1:49:2]))

@@ -61,7 +61,6 @@ def test_malformed_records_are_skipped_and_named(tmp_path):
     path = tmp_path / "bad.atrlog"
     good = {"t": 1.0, "link": "nmea", "msg": b"$X*00"}
     bads = [
-        [1, 2, 3],
         {"t": 2.0, "link": "radio", "msg": b""},
         {"t": "now", "link": "nmea", "msg": b""},
         {"t": 3.0, "link": "can", "msg": {"id": -1, "data": b"", "ext": False}},
@@ -73,9 +72,12 @@ def test_malformed_records_are_skipped_and_named(tmp_path):
         for b in bads:
             fh.write(msgpack.packb(b, use_bin_type=True))
         fh.write(msgpack.packb(good, use_bin_type=True))
+        fh.write(msgpack.packb([1, 2, 3]))  # not a record at all: garbage, skipped to the next valid record
+        fh.write(msgpack.packb(good, use_bin_type=True))
     reader = AtrLogReader(path)
     got = list(reader)
-    assert len(got) == 2 and reader.rejected == len(bads)
+    assert len(got) == 3 and reader.rejected == len(bads) + 1
+    assert reader.reasons == {"bad link": 1, "bad t": 1, "bad msg": 2, "missing key": 1, "garbage skipped": 1}
     assert all("byte" in e for e in reader.errors)
     with pytest.raises(LogFormatError, match="byte"):
         list(read_atrlog(path, strict=True))

@@ -115,3 +115,24 @@ def test_drop_reasons_survive_a_snapshot_and_resume(no_positions, tmp_path):
     finally:
         again.close()
     assert s["tiles_dropped"] == n and s["drop_reasons"] == {"no usable nav": n}
+
+
+def test_the_measured_first_return_band_survives_a_snapshot(tmp_path):
+    """A tile too short to measure its first-return band uses the side's last measured one:
+    a resumed node must have it too, or its contacts could differ from an uninterrupted run's."""
+    from atr_node.node import state as node_state
+    from atr_node.node.pipeline import Pipeline
+
+    settings = Settings()
+    first = Pipeline(settings, model=PerformanceModel.shipped(), workers=0)
+    try:
+        first.merger._band_by_side = {"port": 1.7, "stbd": 0.53}
+        node_state.save(tmp_path, first, position=0)
+    finally:
+        first.close()
+    again = Pipeline(settings, model=PerformanceModel.shipped(), workers=0)
+    try:
+        node_state.load(tmp_path, again)
+        assert again.merger._band_by_side == {"port": 1.7, "stbd": 0.53}
+    finally:
+        again.close()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import subprocess
 import sys
+import threading
 import time
 
 import matplotlib.image as mpimg
@@ -108,12 +109,26 @@ def test_monitor_redraws_in_place(pub_and_follower):
     out = io.StringIO()
     mon = Monitor(fol, out=out, refresh_s=0.05, ansi=True, max_rows=5)
     pub.contact(contact(9, state="new"))
-    why = mon.run(duration_s=0.5)
+    stop = threading.Event()
+
+    def stop_after_three_frames() -> None:  # by frames drawn, not by time: a loaded machine draws fewer per second
+        while mon.frames < 3 and not stop.wait(0.01):
+            pass
+        stop.set()
+
+    threading.Thread(target=stop_after_three_frames, daemon=True).start()
+    why = mon.run(duration_s=120.0, stop=stop)  # the duration is a guard against hanging only
     text = out.getvalue()
-    assert why == "duration" and mon.frames >= 3
+    assert why == "stop" and mon.frames >= 4  # three redraws, then the last frame
     assert text.count(HOME) == mon.frames and text.count(CLEAR_EOS) == mon.frames
     assert "\x1b[2J" in text[:10]  # cleared once, then overwritten in place
     assert "    9 " in text.split(HOME)[-1]
+
+
+def test_monitor_stops_after_its_duration(pub_and_follower):
+    _pub, fol = pub_and_follower
+    mon = Monitor(fol, out=io.StringIO(), refresh_s=0.05, ansi=True, max_rows=5)
+    assert mon.run(duration_s=0.3) == "duration" and mon.frames >= 1  # at least the last frame
 
 
 def test_monitor_command_against_a_live_node_with_png(live_node, tmp_path):

@@ -131,7 +131,9 @@ def _push(ctx, endpoint, *, curve: CurveConfig | None, server: bool):
     return s
 
 
-def _recv_any(link, sender, payload, seconds=3.0):
+def _recv_any(link, sender, payload, seconds=20.0):
+    # returns at the first record: the default is a guard for a loaded machine (a CURVE
+    # handshake waits for the CPU), not a timing requirement; refusals pass a short wait
     deadline = time.monotonic() + seconds
     while time.monotonic() < deadline:
         try:

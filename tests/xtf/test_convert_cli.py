@@ -29,11 +29,13 @@ def test_convert_both_ways(iver2, tmp_path, capsys):
     assert [(t.side, t.seq, t.leg, t.rows) for t in again] == [(t.side, t.seq, t.leg, t.rows) for t in tiles]
 
 
-def test_convert_nav_only_file(nav_only, tmp_path, capsys):
-    assert main(["convert", str(nav_only), str(tmp_path / "nav.atrlog")]) == 0
-    out = capsys.readouterr().out
-    assert "tiles 0" in out and "skipped: qinsy_r2sonic_bathy 923" in out
-    assert {r.link for r in read_atrlog(tmp_path / "nav.atrlog")} == {"nmea"}
+def test_convert_nav_only_file_is_refused(nav_only, tmp_path, capsys):
+    """A recording with navigation and no sonar tile is bad input for convert (issue 20): one
+    line, exit 1, no output file."""
+    assert main(["convert", str(nav_only), str(tmp_path / "nav.atrlog")]) == 1
+    err = capsys.readouterr().err
+    assert f"{nav_only}: no sonar tile in " in err and err.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("args, message", [
