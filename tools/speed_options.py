@@ -90,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     from atr_node.calibration.model import PerformanceModel
     from atr_node.calibration.online import OnlineCalibrator
     from atr_node.config import Settings
-    from atr_node.evaluation.evaluate import evaluate_log
+    from atr_node.evaluation.evaluate import NODE_SOURCE, evaluate_log
     from atr_node.evaluation.scoring import match, read_truth
     from atr_node.io.atrlog import read_atrlog
     from atr_node.records.tile import Tile
@@ -123,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
             wall = time.perf_counter() - t0
             run = res.run
             ds = next(r for r in res.rows if r.method.startswith("DS") and "no missed" not in r.method
-                      and "weakest" not in r.method)
+                      and "weakest" not in r.method and r.source != NODE_SOURCE)  # DS of the 3 best
             cmp_ = res.comparison
             contacts = [c for c in run.node_contacts if c["state"] != "withdrawn" and c["bel"] >= s.fusion.report_bel]
             en = np.array([(c["east_m"], c["north_m"]) for c in contacts]).reshape(-1, 2)

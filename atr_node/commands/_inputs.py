@@ -10,20 +10,22 @@ from pathlib import Path
 from ..errors import AtrError
 
 
-def require_sonar_tile(path: str | Path, *, crs: str = "", altitude: str = "auto") -> None:
+def require_sonar_tile(path: str | Path, *, crs: str = "") -> None:
     """Raise :class:`AtrError` (``FILE: no sonar tile in N records``) unless the recording at
     ``path`` (.atrlog, .xtf or .jsf) holds a sonar tile. Reads up to the first tile only, so a
     normal recording costs one record or a few; an unreadable file fails with its reader's
-    own one-line error (missing, empty, not a recording)."""
+    own one-line error (missing, empty, not a recording). XTF and JSF are read with their
+    recorded altitude: tracking the first bottom return here would only repeat the work the
+    command's own read does on the same first block."""
     from ..node.service import open_recording
 
     p = Path(path)
     if p.is_dir():
         raise AtrError(f"{p}: a folder; expected a recording file (.atrlog, .xtf or .jsf)")
     if not p.exists():
-        raise AtrError(f"{p}: no such file; expected a recording (.atrlog, .xtf or .jsf)")
+        raise AtrError(f"{p}: cannot open: No such file or directory; expected a recording (.atrlog, .xtf or .jsf)")
     records = 0
-    for rec in open_recording(p, crs=crs, altitude=altitude):
+    for rec in open_recording(p, crs=crs, altitude="altimeter"):
         if rec.link == "sonar":
             return
         records += 1

@@ -116,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
 
         for path in args.recordings:
             if not Path(path).is_file():
-                raise AtrError(f"{path}: no such file; expected a recording (.atrlog, .xtf or .jsf)")
+                raise AtrError(f"{path}: cannot open: No such file or directory; expected a recording "
+                               f"(.atrlog, .xtf or .jsf)")
     from ..batch.grids import run_recordings
     from ..calibration.model import PerformanceModel
     from ..node.service import write_contacts

@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         crs = resolve_crs(getattr(args, "crs", None), settings)
         for path in args.input:  # every recording checked before the first injection
             if Path(path).suffix.lower() in (".atrlog", ".xtf", ".jsf"):
-                require_sonar_tile(path, crs=crs, altitude=settings.recording.altitude)
+                require_sonar_tile(path, crs=crs)
         images = images_from_paths(args.input, settings=settings, max_images=args.max_images,
                                    pixel_m=args.pixel_m, range0_m=args.range0_m, crs=crs)
         source = ", ".join(str(p) for p in args.input)

@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     crs = resolve_crs(getattr(args, "crs", None))
     if not dst.parent.is_dir():
         raise AtrError(f"{dst}: No such file or directory: no folder {dst.parent}")
-    require_sonar_tile(src, crs=crs, altitude=args.altitude)
+    require_sonar_tile(src, crs=crs)
     try:
         with atomic_path(dst) as tmp:
             if kin in ("xtf", "jsf"):

@@ -4,8 +4,10 @@ Three sources of contacts:
 
   --contacts FILE      the JSON lines of `atr-node replay --contacts-out` (final states)
   --subscribe ENDPOINT a live node's PUB socket, for --duration seconds (latest state per id)
-  --log LOG            a recording: the node's pipeline is run on it once and every method of
-                       the paper's figure 6 is scored on the same detections: each detector
+  --log LOG            a recording: the node is run on it; its published contacts are scored
+                       first, as --contacts scores them (and written to contacts.jsonl),
+                       then, in a comparison pass recomputed from the node's detections,
+                       every method of the paper's figure 6: each detector
                        alone, AND of the three best and of all four, OR of all four,
                        Dempster-Shafer fusion without missed-detection evidence, with it, and
                        with it plus the weakest detector
@@ -23,8 +25,6 @@ import shutil
 import sys
 import time
 from pathlib import Path
-
-import numpy as np
 
 from ..config import load_settings
 from ..errors import AtrError
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
         from ._crs import resolve_crs
         from ._inputs import require_sonar_tile
 
-        require_sonar_tile(args.log, crs=resolve_crs(None, settings), altitude=settings.recording.altitude)
+        require_sonar_tile(args.log, crs=resolve_crs(None, settings))
     elif args.contacts:
         _check_contacts_file(args.contacts)
     else:

@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         check_optional_endpoint(settings.links.snapshot_endpoint, "links.snapshot_endpoint")
     # checked first: a recording that cannot be read, holds no tile or needs --crs fails before the node starts
     crs = resolve_crs(getattr(args, "crs", None), settings)
-    require_sonar_tile(args.log, crs=crs, altitude=settings.recording.altitude)
+    require_sonar_tile(args.log, crs=crs)
     recording = open_recording(args.log, crs=crs, altitude=settings.recording.altitude)
     model, online = build_model(settings, args.model, args.online_calibration, deterministic=True)
     publish = None if publish in ("", "none") else publish

@@ -298,7 +298,12 @@ def group_detections(detections: Sequence[Detection], objects: ObjectMap | None,
             best[k] = d
     for k, d in best.items():
         obj = objects.objects[k - 1]
-        row = min(max(round(obj.row) - core_start, 0), core_rows - 1)
+        row = round(obj.row) - core_start
+        if not 0 <= row < core_rows:
+            # its centre lies in a margin: the object is the neighbouring unit's, which sees it
+            # there in its core (clamped into this core it would be a second contact, a few
+            # metres off, depending on where the tiles were cut)
+            continue
         col = min(max(round(obj.col), 0), objects.shape[1] - 1)
         out.append(replace(d, row=int(row), col=int(col), range_m=float(range0_m + col * dr_m),
                            extent_range_m=obj.extent_range_m, extent_along_m=obj.extent_along_m,

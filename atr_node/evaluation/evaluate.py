@@ -1,6 +1,16 @@
 """One mission evaluated: the node run on a recording, every method scored, figures written,
 and the paper's claims checked (issue "evaluation and demo").
 
+The first row scores the contacts the node published (final state of each, as
+``--contacts-out`` writes them; written to ``contacts.jsonl``) with
+:func:`~atr_node.evaluation.scoring.score_contacts`, the function ``atr-node evaluate
+--contacts`` calls. The other rows are the *comparison pass*: every method recomputed from
+the node's detections (one pass with the model the node ended with). Its Dempster-Shafer
+operating points take the contacts as the node extracts them, so its DS row of every detector
+is the node's row whenever one model served every tile (``_node_agreement`` says so, or why
+not); its ROC curves re-segment the belief map down to Bel 0.02
+(:meth:`~atr_node.evaluation.methods.Comparison.fusion`).
+
 Claims of the paper's figure 6, checked on each mission and reported as holding or not:
 
 1. Dempster-Shafer fusion with missed-detection evidence reaches the highest Pd of any method

@@ -202,7 +202,7 @@ def _place_labels(fig, ax, items: Sequence[tuple[np.ndarray, str, bool]], *, max
             ax.annotate(text, xy, xytext=(dx_pt, dy_pt), textcoords="offset points", fontsize=LABEL_FONT_PT,
                         color="lime" if on_target else "yellow",
                         ha="right" if dx_pt < 0 else ("center" if dx_pt == 0 else "left"), va="bottom",
-                        bbox=dict(boxstyle="square,pad=0.1", fc="black", ec="none", alpha=0.55),
+                        bbox=dict(boxstyle="square,pad=0.1", fc="black", ec="none", alpha=0.75),
                         arrowprops=dict(arrowstyle="-", color="white", lw=0.6, alpha=0.8) if leader else None)
             break
     return len(taken)

@@ -71,6 +71,11 @@ class _Component:
     seen: "Contact | None" = None
     """The live contact it was last found equal to (or published as): unchanged since, it is
     skipped without comparing."""
+    members: "tuple[_Component, ...]" = ()
+    """A merged extended object (:meth:`ContactTracker._merge_objects`): the components it
+    joins, in order (their peak cells give its legs); empty for any other component."""
+    ext: Any = None
+    """Its extended objects' footprints (:func:`_footprints`), computed on first use."""
 
 
 @dataclass(eq=False)
@@ -146,20 +151,148 @@ EXTENT_FIELDS = ("length_m", "width_m", "heading_deg")
 
 
 def extent_fields(detections: Sequence[DetectionRecord], frame: MissionFrame) -> dict[str, float | None]:
-    """A contact's extent from its detections: that of the longest extended object among them
-    (the most complete view: a wreck cut by a unit's edge is seen in parts), its grid
-    heading turned true (plus the meridian convergence at its position); None when no
-    detection carries one (``detectors/objects.py``)."""
-    best = None
-    for r in detections:
-        if r.length_m is not None and (best is None or r.length_m > best.length_m):
-            best = r
-    if best is None:
+    """A contact's extent from its detections: per leg, the oriented box of the union of the
+    footprints of its extended objects (:func:`leg_boxes`: a wreck cut by units' edges is seen
+    in pieces, one per unit, that together make the wreck); of the legs, the longest box (the
+    most complete view), its grid heading turned true (plus the meridian convergence at its
+    centre); None when no detection carries an extent (``detectors/objects.py``)."""
+    boxes = leg_boxes(detections)
+    if not boxes:
         return dict.fromkeys(EXTENT_FIELDS)
-    lat, lon = frame.to_latlon(best.east_m, best.north_m)
+    best = boxes[0]
+    for b in boxes[1:]:
+        if b[2] > best[2]:
+            best = b
+    lat, lon = frame.to_latlon(best[0], best[1])
     conv, _ = frame.grid_factors(lat, lon)
-    return {"length_m": float(best.length_m), "width_m": float(best.width_m),
-            "heading_deg": axis_heading_deg(best.heading_deg + float(conv))}
+    return {"length_m": float(best[2]), "width_m": float(best[3]),
+            "heading_deg": axis_heading_deg(best[4] + float(conv))}
+
+
+TOUCH_M = 1.0
+"""Footprints of extended objects at most this far apart are one object. Pieces of one wreck
+cut by units' edges overlap (neighbouring units see each other's edge rows, their margins);
+the allowance covers the gaps a broken hull outline leaves between pieces found apart."""
+
+
+def _unique_footprints(detections: Sequence[DetectionRecord]) -> list[DetectionRecord]:
+    """The extended detections, one per distinct footprint (the detectors of a unit report
+    its object with the same centre and extent), in their order."""
+    seen: dict[tuple, DetectionRecord] = {}
+    for r in detections:
+        if r.length_m is not None:
+            seen.setdefault((r.leg, r.east_m, r.north_m, r.length_m, r.width_m, r.heading_deg), r)
+    return list(seen.values())
+
+
+def _corners(recs: Sequence[DetectionRecord]) -> np.ndarray:
+    """Corners (k, 4, 2) (east, north) of the footprints of extended detections: the centre
+    +- half the length along the grid heading, +- half the width across it, in turn."""
+    h = np.radians(np.array([r.heading_deg for r in recs], dtype=float))
+    u = np.column_stack([np.sin(h), np.cos(h)])  # along the long axis
+    v = np.column_stack([np.cos(h), -np.sin(h)])  # across it
+    c = np.array([(r.east_m, r.north_m) for r in recs], dtype=float)
+    a = 0.5 * np.array([r.length_m for r in recs], dtype=float)[:, None] * u
+    b = 0.5 * np.array([r.width_m for r in recs], dtype=float)[:, None] * v
+    return np.stack([c + a + b, c + a - b, c - a - b, c - a + b], axis=1)
+
+
+def _box(points: np.ndarray) -> tuple[float, float, float, float, float]:
+    """Oriented bounding box of points (n, 2) (east, north), its long axis the principal axis
+    of their second moments: (centre east, centre north, length, width, grid heading of the
+    long axis in [0, 180))."""
+    m = points.mean(axis=0)
+    d = points - m
+    see, snn, sen = float((d[:, 0] ** 2).mean()), float((d[:, 1] ** 2).mean()), float((d[:, 0] * d[:, 1]).mean())
+    phi = 0.5 * math.atan2(2.0 * sen, snn - see)  # from grid north, clockwise
+    u = np.array([math.sin(phi), math.cos(phi)])
+    v = np.array([math.cos(phi), -math.sin(phi)])
+    along, across = d @ u, d @ v
+    a0, a1, c0, c1 = float(along.min()), float(along.max()), float(across.min()), float(across.max())
+    centre = m + 0.5 * (a0 + a1) * u + 0.5 * (c0 + c1) * v
+    length, width, heading = a1 - a0, c1 - c0, math.degrees(phi)
+    if width > length:  # a square-ish union: the longer side is the axis
+        length, width, heading = width, length, heading + 90.0
+    return float(centre[0]), float(centre[1]), length, width, axis_heading_deg(heading)
+
+
+def leg_boxes(detections: Sequence[DetectionRecord]) -> list[tuple[float, float, float, float, float, float]]:
+    """Per leg (ascending) that saw extended objects among ``detections``, the oriented box of
+    the union of their footprints (:func:`_box` of their corners): (east, north, length,
+    width, grid heading, weight), the weight the sum of the leg's distinct footprints'
+    confidences. The pieces of one wreck seen by neighbouring units of a leg make its full
+    extent; different legs are not joined (their navigation differs: the union would grow
+    by the offset between them)."""
+    by_leg: dict[int, list[DetectionRecord]] = {}
+    for r in _unique_footprints(detections):
+        by_leg.setdefault(r.leg, []).append(r)
+    out = []
+    for leg in sorted(by_leg):
+        recs = by_leg[leg]
+        out.append((*_box(_corners(recs).reshape(-1, 2)), math.fsum(r.confidence for r in recs)))
+    return out
+
+
+def contact_position(detections: Sequence[DetectionRecord], idx: Sequence[int], *, nav_sigma_m: float
+                     ) -> tuple[float, float, float]:
+    """Position of a contact: (east_m, north_m, sigma_m).
+
+    With extended objects among its detections, the centre of their extent: per leg the
+    centre of the box of the union of its footprints (:func:`leg_boxes`), averaged over the
+    legs by their weights, ``sigma_m`` the spread of those centres plus ``nav_sigma_m`` in
+    quadrature (as :func:`detection_position`). The pieces of a wreck cut by units' edges
+    lie either side of its centre, and its other detections on its edges. Otherwise
+    :func:`detection_position`.
+    """
+    boxes = leg_boxes([detections[i] for i in idx])
+    if not boxes:
+        return detection_position(detections, idx, nav_sigma_m=nav_sigma_m)
+    w = [b[5] for b in boxes]
+    if not math.fsum(w) > 0.0:
+        w = [1.0] * len(boxes)
+    sw = math.fsum(w)
+    e = math.fsum(wi * b[0] for wi, b in zip(w, boxes)) / sw
+    n = math.fsum(wi * b[1] for wi, b in zip(w, boxes)) / sw
+    var = math.fsum(wi * ((b[0] - e) ** 2 + (b[1] - n) ** 2) for wi, b in zip(w, boxes)) / sw
+    return e, n, math.sqrt(0.5 * var + float(nav_sigma_m) ** 2)
+
+
+def _footprints(detections: Sequence[DetectionRecord], idx: Sequence[int]) -> tuple | None:
+    """Footprints of the extended objects among detections ``idx``: (corners (k, 4, 2), their
+    axes (k, 2, 2), bounding circle centre (2,) and radius), None without any."""
+    recs = _unique_footprints([detections[i] for i in idx])
+    if not recs:
+        return None
+    corners = _corners(recs)
+    axes = np.stack([corners[:, 0] - corners[:, 3], corners[:, 0] - corners[:, 1]], axis=1)
+    norm = np.linalg.norm(axes, axis=2, keepdims=True)
+    axes = np.divide(axes, norm, out=np.zeros_like(axes), where=norm > 0)
+    pts = corners.reshape(-1, 2)
+    centre = pts.mean(axis=0)
+    return corners, axes, centre, float(np.sqrt(((pts - centre) ** 2).sum(axis=1)).max())
+
+
+def _touch(a: tuple, b: tuple, tol_m: float) -> bool:
+    """Whether some footprint of ``a`` and some of ``b`` (:func:`_footprints`) overlap or lie
+    within ``tol_m`` of each other: no separating axis among the rectangles' edge normals
+    (separating axis theorem) with a gap over ``tol_m``."""
+    ca, aa = a[0], a[1]
+    cb, ab = b[0], b[1]
+    for i in range(ca.shape[0]):
+        for j in range(cb.shape[0]):
+            axes = np.concatenate([aa[i], ab[j]])  # (4, 2)
+            pa, pb = ca[i] @ axes.T, cb[j] @ axes.T  # (4 corners, 4 axes)
+            gap = np.maximum(pb.min(axis=0) - pa.max(axis=0), pa.min(axis=0) - pb.max(axis=0))
+            if not (gap > tol_m).any():
+                return True
+    return False
+
+
+def _legs(grid: EvidenceGrid, comp: _Component) -> tuple[int, ...]:
+    """Legs of a component: those at its peak cell, or at any of its members' (merged)."""
+    if not comp.members:
+        return tuple(grid.legs_at(comp.iy, comp.ix))
+    return tuple(sorted({leg for m in comp.members for leg in grid.legs_at(m.iy, m.ix)}))
 
 
 def _one_to_one(pairs: list[tuple[float, int, int]]) -> dict[int, int]:
@@ -294,6 +427,8 @@ class ContactTracker:
         """Last message of every contact ever published (final states)."""
         self._stamp = 0
         self._cells: dict[tuple[int, int], tuple[np.ndarray, ...]] = {}
+        self._merged: dict[tuple[int, ...], _Component] = {}
+        """Merged extended objects of the last update, by their members (``_merge_objects``)."""
         self._groups: dict[bytes, tuple[int, np.ndarray]] = {}
         """Leader grouping of a region's detections, by their positions and confidences (see _split)."""
         self._reset_regions()
@@ -377,36 +512,39 @@ class ContactTracker:
         d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1))
         members = [d_order[d_bounds[j]:d_bounds[j + 1]].tolist() for j in range(n_comp)]
         # position from the detections behind a component (SPEC 7); one without any is never a
-        # contact: NaN, so it matches no live contact (NaN <= gate is false) and is skipped below
-        ce, cn, sigma = np.full(n_comp, np.nan), np.full(n_comp, np.nan), np.full(n_comp, np.nan)
+        # contact (SPEC 7)
+        comps = []
         for j, m in enumerate(members):
             if m:
-                ce[j], cn[j], sigma[j] = detection_position(grid.detections, m, nav_sigma_m=self.fusion.nav_sigma_m)
+                p = int(peak[j])
+                ce, cn, sigma = contact_position(grid.detections, m, nav_sigma_m=self.fusion.nav_sigma_m)
+                comps.append(_Component(j, ce, cn, sigma, float(bel[p]), float(mn[p]), float(mth[p]), int(iy[p]),
+                                        int(ix[p]), m))
+        comps = self._merge_objects(grid, comps)
         # one-to-one matching, nearest first, within the gate (one distance matrix, live
         # contacts x components; the same element-wise hypot as one row at a time)
         pairs = []
-        if self.live and n_comp:
+        if self.live and comps:
             cids = list(self.live)
+            ce = np.array([c.ce for c in comps])
+            cn = np.array([c.cn for c in comps])
             le = np.array([self.live[c].east_m for c in cids])
             ln = np.array([self.live[c].north_m for c in cids])
             d = np.hypot(ce[None, :] - le[:, None], cn[None, :] - ln[:, None])
             ii, jj = np.nonzero(d <= self.gate_m)
             pairs = list(zip(d[ii, jj].tolist(), [cids[i] for i in ii.tolist()], jj.tolist()))
-        comp_id = _one_to_one(pairs)
+        comp_id = _one_to_one(pairs + self._member_pairs(comps))
         out: list[Contact] = []
-        for j in range(n_comp):
-            if not members[j]:
-                continue  # a region with no detection behind it is never a contact (SPEC 7)
-            p = peak[j]
-            if j not in comp_id and bel[p] < self.fusion.report_bel:
+        for j, comp in enumerate(comps):
+            if j not in comp_id and comp.bel < self.fusion.report_bel:
                 continue
             cid = comp_id.get(j)
             state = "update" if cid is not None else "new"
-            legs = tuple(grid.legs_at(int(iy[p]), int(ix[p])))
-            dets = [grid.detections[i] for i in members[j]]
+            legs = _legs(grid, comp)
+            dets = [grid.detections[i] for i in comp.dets]
             names = {r.detector for r in dets}
-            fields = dict(east_m=float(ce[j]), north_m=float(cn[j]), sigma_m=float(sigma[j]), bel=float(bel[p]),
-                          pl=float(1.0 - mn[p]), m_theta=float(mth[p]), looks=len(legs), detections=len(dets),
+            fields = dict(east_m=comp.ce, north_m=comp.cn, sigma_m=comp.sigma, bel=comp.bel,
+                          pl=float(1.0 - comp.mn), m_theta=comp.mth, looks=len(legs), detections=len(dets),
                           detectors=tuple(d for d in grid.detectors if d in names),
                           legs=legs, **extent_fields(dets, self.frame))
             if state == "update":
@@ -416,7 +554,7 @@ class ContactTracker:
                     continue
             else:
                 cid, self.next_id = self.next_id, self.next_id + 1
-            lat, lon = self.frame.to_latlon(ce[j], cn[j])
+            lat, lon = self.frame.to_latlon(comp.ce, comp.cn)
             c = Contact(id=cid, state=state, t=float(t), lat_deg=float(lat), lon_deg=float(lon), **fields)
             self.live[cid] = c
             out.append(c)
@@ -538,7 +676,7 @@ class ContactTracker:
             dl = det_idx[d_order[d_bounds[j]:d_bounds[j + 1]]].tolist()
             # position from its detections (SPEC 7); without any it is kept for the region's
             # bookkeeping but never published (_publish)
-            ce, cn, sigma = (detection_position(grid.detections, dl, nav_sigma_m=self.fusion.nav_sigma_m) if dl
+            ce, cn, sigma = (contact_position(grid.detections, dl, nav_sigma_m=self.fusion.nav_sigma_m) if dl
                              else (math.nan, math.nan, math.nan))
             comps.append(_Component(key, ce, cn, sigma, float(bel[p]), float(mn[p]),
                                     float(mth[p]), int(iy[p]), int(ix[p]), dl))
@@ -564,7 +702,7 @@ class ContactTracker:
         extraction does, component by component in its order)."""
         # a region with no detection behind it is never a contact, neither born nor kept
         # alive (SPEC 7): a live contact whose region lost its detections is withdrawn
-        comps = [c for c in sorted(self._comps.values(), key=lambda c: c.key) if c.dets]
+        comps = self._merge_objects(grid, [c for c in sorted(self._comps.values(), key=lambda c: c.key) if c.dets])
         n_comp = len(comps)
         pairs = []
         if self.live and n_comp:
@@ -586,7 +724,7 @@ class ContactTracker:
             d = np.hypot(ce[jj] - le[ii], cn[jj] - ln[ii])
             ok = d <= self.gate_m
             pairs = list(zip(d[ok].tolist(), [cids[i] for i in ii[ok].tolist()], jj[ok].tolist()))
-        comp_id = _one_to_one(pairs)
+        comp_id = _one_to_one(pairs + self._member_pairs(comps))
         out: list[Contact] = []
         for j, comp in enumerate(comps):
             cid = comp_id.get(j)
@@ -598,7 +736,7 @@ class ContactTracker:
             state = "update" if cid is not None else "new"
             fields = comp.fields
             if fields is None:
-                legs = tuple(grid.legs_at(comp.iy, comp.ix))
+                legs = _legs(grid, comp)
                 dets = [grid.detections[i] for i in comp.dets]
                 names = {r.detector for r in dets}
                 fields = comp.fields = dict(
@@ -619,6 +757,83 @@ class ContactTracker:
             comp.seen = c
             out.append(c)
         return self._withdraw_rest(grid, t, comp_id, out)
+
+    def _member_pairs(self, comps: list[_Component]) -> list[tuple[float, int, int]]:
+        """(distance, contact id, component) pairs within the gate of a merged component's
+        members' positions: a piece published alone (as the vehicle passes a wreck, the
+        pieces come one unit after another) keeps its id when the next piece joins it, though
+        the union's centre moved beyond the gate."""
+        merged = [(j, c) for j, c in enumerate(comps) if c.members]
+        if not merged or not self.live:
+            return []
+        cids = list(self.live)
+        le = np.array([self.live[c].east_m for c in cids])
+        ln = np.array([self.live[c].north_m for c in cids])
+        out = []
+        for j, c in merged:
+            for m in c.members:
+                d = np.hypot(m.ce - le, m.cn - ln)
+                out.extend((float(d[i]), cids[i], j) for i in np.flatnonzero(d <= self.gate_m).tolist())
+        return out
+
+    def _merge_objects(self, grid: EvidenceGrid, comps: list[_Component]) -> list[_Component]:
+        """Join the components (in the full extraction's order, each with detections) that hold
+        pieces of one extended object: their footprints (:func:`_footprints`) overlap or lie
+        within :data:`TOUCH_M`. The detect stage sees one unit, so a wreck crossing units'
+        edges comes as one piece per unit, each at its own centre, often metres apart, in
+        regions or split groups of their own; one object is one contact (ICD 3), whatever
+        the tiles' cuts (SPEC 0). A merged component stands at the first member's place in
+        the order, with the union of their detections (position and extent from those,
+        :func:`contact_position`, :func:`extent_fields`) and the peak of the highest Bel(T)
+        among them. Components without an extent are untouched. A function of the ordered
+        components only, so the incremental and full extractions agree."""
+        ext = []
+        for j, c in enumerate(comps):
+            if c.ext is None:
+                c.ext = _footprints(grid.detections, c.dets) or ()
+            if c.ext:
+                ext.append(j)
+        if len(ext) < 2:
+            return comps
+        centre = np.array([comps[j].ext[2] for j in ext])
+        radius = np.array([comps[j].ext[3] for j in ext])
+        d = np.hypot(centre[:, None, 0] - centre[None, :, 0], centre[:, None, 1] - centre[None, :, 1])
+        ii, jj = np.nonzero(np.triu(d <= radius[:, None] + radius[None, :] + TOUCH_M, k=1))
+        parent = list(range(len(ext)))
+
+        def root(i: int) -> int:
+            while parent[i] != i:
+                parent[i] = parent[parent[i]]
+                i = parent[i]
+            return i
+
+        for i, j in zip(ii.tolist(), jj.tolist()):
+            ri, rj = root(i), root(j)
+            if ri != rj and _touch(comps[ext[i]].ext, comps[ext[j]].ext, TOUCH_M):
+                parent[max(ri, rj)] = min(ri, rj)
+        groups: dict[int, list[int]] = {}
+        for i in range(len(ext)):
+            groups.setdefault(root(i), []).append(ext[i])
+        merged: dict[int, _Component] = {}
+        gone: set[int] = set()
+        cache: dict[tuple[int, ...], _Component] = {}
+        for g in groups.values():
+            if len(g) < 2:
+                continue
+            members = tuple(comps[j] for j in g)
+            ident = tuple(id(m) for m in members)
+            old = self._merged.get(ident)
+            if old is None or any(a is not b for a, b in zip(old.members, members)):
+                top = max(members, key=lambda c: c.bel)  # the first of the highest
+                dets = sorted({i for m in members for i in m.dets})
+                ce, cn, sigma = contact_position(grid.detections, dets, nav_sigma_m=self.fusion.nav_sigma_m)
+                old = _Component(members[0].key, ce, cn, sigma, top.bel, top.mn, top.mth, top.iy, top.ix, dets,
+                                 members=members, ext=())
+            cache[ident] = old  # unchanged members: the same merged component (its publish cache)
+            merged[g[0]] = old
+            gone.update(g[1:])
+        self._merged = cache
+        return [merged.get(j, c) for j, c in enumerate(comps) if j not in gone]
 
     def _split(self, grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, reg: np.ndarray, n_reg: int,
                det_reg: np.ndarray, det_idx: np.ndarray | None = None,
@@ -708,5 +923,5 @@ class ContactTracker:
         self.next_id = int(state["next_id"])
         self.live = {int(m["id"]): Contact.from_message(m) for m in state["live"]}
         self.history = {int(m["id"]): Contact.from_message(m) for m in state["history"]}
-        self._stamp, self._cells, self._groups = 0, {}, {}
+        self._stamp, self._cells, self._groups, self._merged = 0, {}, {}, {}
         self._reset_regions()

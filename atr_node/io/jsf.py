@@ -47,7 +47,9 @@ scale is not stated consistently, and they are below 1 ns); range spacing = soun
 counted. Position (int32 X at 80, Y at 84) only in coordinate units (int16 at 88) 2 =
 minutes of arc x 10000; units 1, 3, 4 (X, Y in mm, dm, cm) are projected coordinates in a
 projection the file does not name: converted with the CRS the user gives (``crs``, as for
-XTF: :mod:`.crs`), else not used (said once in ``stats.errors``). Validity flags (uint16 at
+XTF: :mod:`.crs`); without one the first such ping raises
+:class:`~atr_node.errors.LogFormatError` naming ``--crs`` (undefined units: not used, said once
+in ``stats.errors``). Validity flags (uint16 at
 30): bit 0 position, 2 speed (int16 at 194, 1/10 knot, + LSB2 (20) bits 0-3 in 1/100 knot),
 3 heading (uint16 at 172, 1/100 deg), 6 altitude (int32 at 144, mm; 0 = not filled), 9 depth
 (int32 at 136, mm); a file whose flags are all 0 (older software) has its non-zero fields
@@ -74,9 +76,9 @@ import numpy as np
 from ..config import SensorSettings
 from ..errors import LogFormatError
 from .atrlog import LogRecord
-from .crs import Projection, projection
 from .xtf import DEFAULT_TILE_PINGS, XtfReader
-from .xtf_packets import KNOT_M_S, XtfChannel, XtfNav, XtfPing, XtfSerial
+from .crs import EXAMPLE_CRS, Projection, projection
+from .xtf_packets import KNOT_M_S, XtfChannel, XtfNav, XtfPing, XtfSerial, fix_time
 from .xtf_stats import XtfStats
 
 __all__ = ["JsfReader", "JsfStats", "check_jsf", "iter_jsf_items", "iter_jsf_records"]
@@ -191,20 +193,30 @@ class _PingParser:
         return XtfChannel(side=side, samples=x, range0_m=(int(h["start_depth"]) + 0.5) * dr, dr_m=dr, slant=True,
                           frequency_hz=freq_hz, bandwidth_hz=abs(f1 - f0) * 10.0 / 1e3)
 
-    def latlon(self, h: np.void, path: str) -> tuple[float, float]:
+    def latlon(self, h: np.void, path: str, offset: int | None = None) -> tuple[float, float]:
+        """Degrees of a ping's position; NaN when it has none or its units are not defined.
+
+        Raises
+        ------
+        LogFormatError
+            Projected units (1, 3, 4) and no CRS given: one line naming ``--crs``, as for an
+            XTF file in projected metres (ICD section 6).
+        """
         units, x, y = int(h["coord_units"]), int(h["x"]), int(h["y"])
         if not (x or y):
             return math.nan, math.nan
         if units == COORD_MINUTES_X10000:
             lat, lon = y / 600000.0, x / 600000.0
             return (lat, lon) if abs(lat) <= 90.0 and abs(lon) <= 180.0 else (math.nan, math.nan)
-        if units in COORD_METRES and self.projection is not None:
+        if units in COORD_METRES:
+            if self.projection is None:
+                raise LogFormatError(f"positions are projected X, Y (JSF coordinate units {units}) in a "
+                                     "projection the file does not name: give their CRS with --crs (or the "
+                                     f"recording.crs key), e.g. --crs {EXAMPLE_CRS}", path=path, offset=offset)
             return self.projection.to_latlon(x * COORD_METRES[units], y * COORD_METRES[units])
         if units not in self._said_units:
             self._said_units.add(units)
-            what = ("(projected X, Y; projection not in the file): positions not used; give --crs "
-                    "(e.g. EPSG:32610)" if units in COORD_METRES else "(not defined): positions not used")
-            self.stats.errors.append(f"{path}: coordinate units {units} {what}")
+            self.stats.errors.append(f"{path}: coordinate units {units} (not defined): positions not used")
         return math.nan, math.nan
 
     def nav(self, h: np.void, t: float, offset: int, path: str) -> XtfNav:
@@ -216,14 +228,12 @@ class _PingParser:
                 return math.nan
             return value
 
-        lat, lon = self.latlon(h, path) if flags & VALID_POSITION else (math.nan, math.nan)
+        lat, lon = self.latlon(h, path, offset) if flags & VALID_POSITION else (math.nan, math.nan)
         speed_kn = int(h["speed_dkn"]) / 10.0 + (int(h["lsb2"]) & 0xF) / 100.0
         fix_t = math.nan
         hh, mm, ss = int(h["fix_hour"]), int(h["fix_minute"]), int(h["fix_second"])
         if (hh or mm or ss) and 0 <= hh < 24 and 0 <= mm < 60 and 0 <= ss < 61:
-            fix_t = t - (t % 86400.0) + hh * 3600 + mm * 60 + ss
-            if fix_t - t > 43200.0:  # fix stamped before midnight, ping after
-                fix_t -= 86400.0
+            fix_t = fix_time(t, hh * 3600 + mm * 60 + ss)
         return XtfNav(t=t, lat_deg=lat, lon_deg=lon,
                       heading_deg=field(VALID_HEADING, int(h["heading_cdeg"]) / 100.0) % 360.0,
                       altitude_m=field(VALID_ALTITUDE, int(h["altitude_mm"]) / 1000.0, zero_is_unset=True),

@@ -41,7 +41,6 @@ from .atrlog import LogRecord
 from .ping_writer import PairedPingWriter
 from .jsf import (ANALYTIC, ENVELOPE, HEADER, NMEA, PING_FIELDS, SONAR, START_MARKER, VALID_ALTITUDE,
                   VALID_HEADING, VALID_POSITION, VALID_SPEED)
-from .xtf_packets import KNOT_M_S
 
 SOUND_SPEED_M_S = 1500.0
 VALID_SOUND_SPEED = 1 << 14
@@ -174,8 +173,7 @@ class JsfWriter(PairedPingWriter):
     def _write_pings(self, tiles: dict[str, Tile]) -> None:
         sides = [s for s in ("port", "stbd") if s in tiles]
         first = tiles[sides[0]]
-        dt = float(np.median(np.diff(first.ping_time))) if first.rows > 1 else 0.0
-        speed_kn = first.dx_m / dt / KNOT_M_S if dt > 0 else 0.0
+        _, speed_kn = self._interval_and_speed(first)
         for i in range(first.rows):
             for s in sides:
                 t = tiles[s]

@@ -17,6 +17,7 @@ import numpy as np
 from ..errors import TileError
 from ..records.tile import Tile
 from .atrlog import LogRecord
+from .xtf_packets import KNOT_M_S
 
 
 class PairedPingWriter:
@@ -71,6 +72,13 @@ class PairedPingWriter:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+    @staticmethod
+    def _interval_and_speed(tile: Tile) -> tuple[float, float]:
+        """(median ping interval in s, speed in knots = ``dx_m`` / interval) of a tile's pings;
+        both 0 for a single ping (the formats store the speed in knots)."""
+        dt = float(np.median(np.diff(tile.ping_time))) if tile.rows > 1 else 0.0
+        return dt, (tile.dx_m / dt / KNOT_M_S if dt > 0 else 0.0)
 
     # -- hooks -------------------------------------------------------------------------------
     def _write_pings(self, tiles: dict[str, Tile]) -> None:

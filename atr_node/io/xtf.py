@@ -49,7 +49,7 @@ from ..config import SensorSettings
 from ..records.nav import _haversine_m, nav_jumps
 from ..records.tile import SensorInfo, Tile, TileNav
 from .atrlog import LogRecord
-from .xtf_bottom import BottomTrack, track_bottom
+from .xtf_bottom import BottomTrack, shares_axis, track_bottom
 from .xtf_packets import XtfNav, XtfPing, XtfSerial, iter_xtf_items, note_fields, read_positions
 from .xtf_stats import XtfStats
 
@@ -70,8 +70,9 @@ WIRE_DTYPE = {np.dtype("<u2"): "uint16", np.dtype("u1"): "uint8"}
 
 
 def _nav_valid(nav: XtfNav) -> bool:
-    return nav.has_position and math.isfinite(nav.heading_deg) and math.isfinite(nav.altitude_m) \
-        and nav.altitude_m >= 0
+    """A ping's nav makes a tile's: a position and a heading. Its altitude may be missing
+    (JSF 0 = not filled, a negative or NaN XTF field): :meth:`XtfReader._altitude_m` fills it."""
+    return nav.has_position and math.isfinite(nav.heading_deg)
 
 
 def _block_key(ping: XtfPing) -> tuple:
@@ -131,14 +132,16 @@ class XtfReader:
         Sensor values the file does not hold (tx/rx array lengths, bandwidth), and ``dx_m``
         when neither speed nor positions give it.
     altitude
-        ``altimeter``: the tile ``nav.altitude_m`` is the ping header's altitude, as recorded;
-        ``sonar``: the sonar's own altitude from the first bottom return of the pings
-        (:func:`.xtf_bottom.track_bottom`, continuous across tiles), the recorded one where
-        the image shows none; ``auto`` (default): the recorded altitude where it is plausible
-        (> 0 and within 5 % or 2 samples of the image's first-return track where it has one),
-        the image's first return where it is zero, missing or inconsistent. Pings per source
-        are counted in ``stats.altitude_source`` and logged once per file. DPT sentences
-        always carry the recorded altitude.
+        ``altimeter``: the tile ``nav.altitude_m`` is the ping header's altitude, as recorded
+        (where it is missing, the image's first return); ``sonar``: the sonar's own altitude
+        from the first bottom return of the pings (:func:`.xtf_bottom.track_bottom`,
+        continuous across tiles), the recorded one where the image shows none; ``auto``
+        (default): the recorded altitude where it is plausible (> 0 and within 5 % or 2
+        samples of the image's first-return track where it has one), the image's first return
+        where it is zero, missing or inconsistent. A ping with a position and a heading but
+        neither a recorded altitude nor an image one takes ``sensor.altitude_m`` (counted as
+        ``nominal``). Pings per source are counted in ``stats.altitude_source`` and logged
+        once per file. DPT sentences always carry the recorded altitude.
     max_gap_s
         A longer pause between two pings starts a new tile (a tile is a contiguous run).
     crs
@@ -324,18 +327,14 @@ class XtfReader:
         st.altitude_recorded_bad["zero"] += int(zero.sum())
         st.altitude_recorded_bad["missing"] += int(missing.sum())
         first = next(iter(tiles.values()))
-        if self.altitude == "altimeter" or not first.slant:
-            st.altitude_source["recorded"] += rec.size
-            return rec
-        # the previous block's track: the Viterbi starts from its end, the along-track envelope
-        # (which fills early returns of objects near the nadir) continues over it
-        track = track_bottom(tiles.get("port"), tiles.get("stbd"), prior=self._alt_prior)
-        img = track.altitude_m
+        if not first.slant or (self.altitude == "altimeter" and not missing.any()):
+            img = np.full(rec.size, np.nan)  # not tracked: not wanted, or no slant range to track on
+        else:
+            img = self._image_altitude_m(tiles)
         have = np.isfinite(img)
-        if have.any():
-            self._alt_prior = track
-        st.altitude_image_carried += int((have & ~track.found).sum())
-        if self.altitude == "sonar":
+        if self.altitude == "altimeter":
+            use = have & missing
+        elif self.altitude == "sonar":
             use = have
         else:
             # recorded where plausible: > 0 and, where the image has a first-return track,
@@ -347,10 +346,30 @@ class XtfReader:
             inconsistent = have & ~(zero | missing) & ~(np.abs(rec - img) <= tol)
             st.altitude_recorded_bad["inconsistent with the image"] += int(inconsistent.sum())
             use = have & (zero | missing | inconsistent)
+        # neither recorded nor seen in the image: the nominal altitude, so that the ping keeps
+        # its position (a tile without nav is dropped by the node when no INS fix is near)
+        nominal = ~use & missing
         st.altitude_source["image"] += int(use.sum())
-        st.altitude_source["recorded"] += int((~use).sum())
+        if nominal.any():
+            st.altitude_source["nominal"] += int(nominal.sum())
+        st.altitude_source["recorded"] += int((~use & ~nominal).sum())
         st.altitude_from_sonar += int(use.sum())
-        return np.where(use, img, rec)
+        return np.where(use, img, np.where(nominal, float(self.sensor.altitude_m), rec))
+
+    def _image_altitude_m(self, tiles: dict[str, Tile]) -> np.ndarray:
+        """The first-return track of a block (:func:`.xtf_bottom.track_bottom`), NaN where the
+        image shows none; sides on different range axes are counted."""
+        port, stbd = tiles.get("port"), tiles.get("stbd")
+        if port is not None and stbd is not None and not shares_axis(port, stbd):
+            self.stats.altitude_sides_resampled += port.rows
+        # the previous block's track: the Viterbi starts from its end, the along-track envelope
+        # (which fills early returns of objects near the nadir) continues over it
+        track = track_bottom(port, stbd, prior=self._alt_prior)
+        have = np.isfinite(track.altitude_m)
+        if have.any():
+            self._alt_prior = track
+        self.stats.altitude_image_carried += int((have & ~track.found).sum())
+        return track.altitude_m
 
     def _tiles(self, block: list[XtfPing]) -> Iterator[LogRecord]:
         first, last = block[0], block[-1]
@@ -382,7 +401,7 @@ class XtfReader:
                     self.stats.pings_resampled += 1
             tiles[side] = Tile(mission=self.mission, leg=self.leg, side=side, seq=self._seq[side], pixels=pixels,
                                kind="amplitude", range0_m=ch.range0_m, dr_m=ch.dr_m, dx_m=dx, slant=ch.slant,
-                               ping_time=ping_time, nav=nav, sensor=self._sensor_info(first, side),
+                               ping_time=ping_time, nav=None, sensor=self._sensor_info(first, side),
                                wire_dtype=wire)
         if nav is not None:
             nav = TileNav(nav.lat_deg, nav.lon_deg, nav.heading_deg, self._altitude_m(tiles, nav.altitude_m))

@@ -41,6 +41,12 @@ it, and it lands in the water column, which the node drops. Across blocks the cl
 over the previous block's raw track (``prior``); a dip still under way at a block's last ping
 is kept (the future is not read). A ping's track is ``found`` when the score at the final range
 shows a rise by at least ``min_rise`` on at least one side.
+
+Cost: the first return lies in the near part of the swath, so a block that follows another is
+filtered and scored only up to :func:`search_limit_m` (twice the previous block's highest
+altitude + 5 m) and the seabed levels come from a column subsample; when the track reaches that
+limit or finds no rise before it, the block is tracked again over the whole swath. Port and
+starboard on different range axes are tracked on the finer one (the other resampled).
 """
 
 from __future__ import annotations
@@ -53,7 +59,7 @@ from scipy import ndimage as ndi
 from ..records.tile import Tile
 
 __all__ = ["BottomTrack", "bottom_altitude_m", "first_return_length_m", "first_return_m", "ringing_end_m",
-           "track_bottom"]
+           "search_limit_m", "shares_axis", "track_bottom"]
 
 
 @dataclass(frozen=True)
@@ -77,12 +83,6 @@ def _window(tile: Tile, window_m: float) -> int:
     return k | 1
 
 
-def _log_profile(tile: Tile, k: int) -> np.ndarray:
-    px = np.nan_to_num(tile.pixels.astype(np.float64), nan=0.0)
-    # log(1 + a): rises are ratios; the +1 keeps no-data (0) and 8-bit water (5) finite
-    return ndi.median_filter(np.log1p(np.maximum(px, 0.0)), size=(1, k), mode="nearest")
-
-
 def ringing_end_m(tile: Tile, *, window_m: float = 0.3) -> float:
     """Slant range where the transmit ringing of a slant tile ends, measured on its pings.
 
@@ -93,51 +93,122 @@ def ringing_end_m(tile: Tile, *, window_m: float = 0.3) -> float:
     """
     if not tile.slant:
         raise ValueError(f"{tile.ident}: bottom tracking needs slant-range pings")
+    return _ring_end(tile.pixels, tile.range0_m, tile.dr_m, tile.cols, 1)
+
+
+def shares_axis(a: Tile, b: Tile) -> bool:
+    """True when two tiles have the same range axis (columns, spacing and first range to 1e-4)."""
+    return a.cols == b.cols and bool(np.isclose(a.dr_m, b.dr_m, rtol=1e-4)) \
+        and bool(np.isclose(a.range0_m, b.range0_m, rtol=1e-4, atol=1e-4 * b.dr_m))
+
+
+def _onto_axis(tile: Tile, ref: Tile) -> np.ndarray:
+    """``tile``'s pixels (no data 0) linearly interpolated at ``ref``'s ranges; past either end
+    of ``tile``'s own axis its edge sample (flat: no rise is made there)."""
     px = np.nan_to_num(tile.pixels.astype(np.float64), nan=0.0)
-    col = np.median(np.log1p(np.maximum(px, 0.0)), axis=0)
-    head = max(tile.cols // 8, 2)
+    f = np.clip((ref.range0_m + ref.dr_m * np.arange(ref.cols) - tile.range0_m) / tile.dr_m, 0.0, tile.cols - 1)
+    i0 = np.floor(f).astype(np.int64)
+    i1 = np.minimum(i0 + 1, tile.cols - 1)
+    w = f - i0
+    return px[:, i0] * (1.0 - w) + px[:, i1] * w
+
+
+def _log1p(px: np.ndarray) -> np.ndarray:
+    # log(1 + a): rises are ratios; the +1 keeps no-data (0) and 8-bit water (5) finite
+    return np.log1p(np.maximum(np.nan_to_num(np.asarray(px, dtype=np.float64), nan=0.0), 0.0))
+
+
+def _median_at(px: np.ndarray, centres: np.ndarray, k: int) -> np.ndarray:
+    """(rows, centres) median of the log amplitude over ``k`` samples around each centre: the
+    values ``ndi.median_filter(size=(1, k), mode="nearest")`` has there, for those columns only."""
+    h = k // 2
+    idx = np.clip(centres[:, None] + np.arange(-h, h + 1)[None, :], 0, px.shape[1] - 1)
+    return np.median(_log1p(px[:, idx]), axis=2)
+
+
+class _NeedFullWidth(Exception):
+    """The near columns do not decide the track: it is computed over the full width."""
+
+
+def _ring_end(px: np.ndarray, r0_m: float, dr_m: float, near: int, step: int) -> float:
+    """:func:`ringing_end_m` on the first ``near`` columns exactly and every ``step``-th beyond
+    (the darkest column is the water column, in the near part unless the seabed far out is
+    darker still)."""
+    cols = px.shape[1]
+    col = np.median(_log1p(px[:, :near]), axis=0)
+    far = np.arange(near, cols, step)
+    far_col = np.median(_log1p(px[:, far]), axis=0) if far.size else np.zeros(0)
+    head = max(cols // 8, 2)
     peak = int(np.argmax(col[:head]))
-    water = float(np.min(col[peak:]))
+    water = float(min(np.min(col[peak:]), np.min(far_col) if far.size else np.inf))
     dark = np.flatnonzero(col[peak:] <= water + np.log(2.0))
-    end = peak + int(dark[0]) if dark.size else peak
-    return float(tile.range0_m + tile.dr_m * end)
+    if not dark.size:
+        if far.size:
+            raise _NeedFullWidth
+        return float(r0_m + dr_m * peak)
+    return float(r0_m + dr_m * (peak + int(dark[0])))
 
 
-def _side_scores(tile: Tile, k: int, ring_end_m: float, bright_penalty: float) -> tuple[np.ndarray, np.ndarray]:
-    """(raw rise, penalised score), both (rows, cols): at column i, the step from [i-k, i) to [i, i+k)."""
-    L = _log_profile(tile, k)
-    rows, cols = L.shape
+def _side_scores(px: np.ndarray, r0_m: float, dr_m: float, k: int, ring_end_m: float, bright_penalty: float,
+                 near: int, step: int) -> tuple[np.ndarray, np.ndarray]:
+    """(raw rise, penalised score), both (rows, near): at column i, the step from [i-k, i) to
+    [i, i+k). Exact for the columns ``i <= near - k - k // 2 - 1``; the seabed levels come from
+    every ``step``-th column of the whole width."""
+    rows, cols = px.shape
+    L = ndi.median_filter(_log1p(px[:, :near]), size=(1, k), mode="nearest")
     c = np.concatenate([np.zeros((rows, 1)), np.cumsum(L, axis=1)], axis=1)
-    rise = np.full((rows, cols), -np.inf)
-    i = np.arange(k, cols - k + 1)
+    rise = np.full((rows, near), -np.inf)
+    i = np.arange(k, near - k + 1)
     rise[:, i] = (c[:, i + k] - c[:, i]) / k - (c[:, i] - c[:, i - k]) / k
     # seabed-bright: above the midpoint (in log) between the ping's water and seabed levels
-    start = min(max(int(np.ceil((ring_end_m - tile.range0_m) / tile.dr_m)), 0), cols - 1)
-    tail = L[:, start:]
+    start = min(max(int(np.ceil((ring_end_m - r0_m) / dr_m)), 0), cols - 1)
+    if near == cols:
+        tail = L[:, start:]
+    else:  # the levels of the whole swath from a column subsample (the median filter costs)
+        tail = _median_at(px, np.arange(start, cols, step), k)
     lo = np.percentile(tail, 10, axis=1)
     hi = np.percentile(tail, 75, axis=1)
     bright = (L > 0.5 * (lo + hi)[:, None]) & ((hi - lo) > np.log(4.0))[:, None]
     bright[:, :start] = False
     # bright samples strictly before the window that precedes i (the edge itself is allowed)
     seen = np.concatenate([np.zeros((rows, 1)), np.cumsum(bright, axis=1)], axis=1)
-    before = np.zeros((rows, cols))
-    j = np.arange(cols)
-    before[:, j] = seen[:, np.clip(j - k, 0, cols)]
-    score = np.clip(rise, 0.0, None) - bright_penalty * tile.dr_m * before
+    before = seen[:, np.clip(np.arange(near) - k, 0, near)]
+    score = np.clip(rise, 0.0, None) - bright_penalty * dr_m * before
     return rise, score
+
+
+NEAR_FACTOR = 2.0
+NEAR_MARGIN_M = 5.0
+"""Default search limit of a block that follows another: ``NEAR_FACTOR`` x the previous block's
+highest altitude + ``NEAR_MARGIN_M`` (the first return lies in the near part of the swath)."""
+SEABED_COLUMNS = 256
+"""About this many columns (a subsample) give the seabed levels of the bright penalty."""
+
+
+def search_limit_m(prior: BottomTrack | None, prior_m: float | None = None) -> float:
+    """Slant range beyond which :func:`track_bottom` looks for no first return by default:
+    ``NEAR_FACTOR`` x the highest altitude of the previous block's raw track (or ``prior_m``)
+    + ``NEAR_MARGIN_M``; infinite (the whole swath) without a previous block."""
+    hist = [float(prior_m)] if prior_m is not None and np.isfinite(prior_m) else []
+    if prior is not None and prior.raw_m is not None and np.isfinite(prior.raw_m).any():
+        hist.append(float(np.nanmax(prior.raw_m)))
+    return NEAR_FACTOR * max(hist) + NEAR_MARGIN_M if hist else np.inf
 
 
 def track_bottom(port: Tile | None, stbd: Tile | None, *, prior_m: float | None = None,
                  prior: BottomTrack | None = None, window_m: float = 0.3, jump_penalty: float = 2.0,
                  bright_penalty: float = 2.0, min_rise: float = np.log(3.0), min_altitude_m: float = 0.0,
-                 envelope_s: float = 4.0, min_dip_m: float = 0.2) -> BottomTrack:
+                 envelope_s: float = 4.0, min_dip_m: float = 0.2, max_altitude_m: float | None = None,
+                 seabed_columns: int | None = SEABED_COLUMNS) -> BottomTrack:
     """First bottom return per ping from one or both sides of a block of slant pings.
 
     Parameters
     ----------
     port, stbd
         Slant-range tiles of the same pings (columns from the nadir outwards); either may be
-        None. Both must share ``range0_m``, ``dr_m`` and ``cols`` when given.
+        None. When both are given with different range axes (sample count, spacing or first
+        range), the coarser side is linearly resampled onto the finer side's axis (port's on a
+        tie), past its own range end by its last sample.
     prior_m
         The altitude just before this block (the end of the previous block's track): the
         track starts near it at the same ``jump_penalty``, so blocks join continuously.
@@ -165,6 +236,15 @@ def track_bottom(port: Tile | None, stbd: Tile | None, *, prior_m: float | None 
         Only dips that the closing raises by more than this somewhere are filled (the whole
         dip then): the bottom of a smooth real valley of the vehicle's altitude (2.5 to 5.5 m
         and back over 30 s: 0.1 m under a 4 s closing) and one-sample jitter stay as tracked.
+    max_altitude_m
+        No return is looked for beyond this slant range, and only the columns up to it (plus
+        the windows) are filtered and scored: the first return lies in the near part of the
+        swath. None: :func:`search_limit_m` of ``prior`` (the whole swath without one); inf:
+        the whole swath. When the track comes within two windows of the limit, or shows no
+        clear rise before it, the block is tracked again over the whole swath.
+    seabed_columns
+        The per-ping seabed levels (the bright penalty's threshold) are taken from about this
+        many columns spread over the swath instead of every column; None: every column.
 
     Returns
     -------
@@ -173,33 +253,69 @@ def track_bottom(port: Tile | None, stbd: Tile | None, *, prior_m: float | None 
     tiles = [t for t in (port, stbd) if t is not None]
     if not tiles:
         raise ValueError("bottom tracking needs at least one side")
-    t0 = tiles[0]
     for t in tiles:
         if not t.slant:
             raise ValueError(f"{t.ident}: bottom tracking needs slant-range pings")
-        if (t.cols, t.rows) != (t0.cols, t0.rows) or not np.isclose(t.dr_m, t0.dr_m, rtol=1e-4) \
-                or not np.isclose(t.range0_m, t0.range0_m, rtol=1e-4, atol=1e-4 * t0.dr_m):
-            raise ValueError(f"{t.ident}: both sides must share the range axis and the pings")
+        if t.rows != tiles[0].rows:
+            raise ValueError(f"{t.ident}: both sides must hold the same pings")
+    # the finest axis (port's on a tie) is the one the track is searched on
+    ref = min(tiles, key=lambda t: t.dr_m)
+    pxs = [t.pixels if shares_axis(t, ref) else _onto_axis(t, ref) for t in tiles]
+    if max_altitude_m is None:
+        max_altitude_m = search_limit_m(prior, prior_m)
+    limit_m = float(max_altitude_m)
+    try:
+        return _track(pxs, ref, limit_m, prior_m=prior_m, prior=prior, window_m=window_m,
+                      jump_penalty=jump_penalty, bright_penalty=bright_penalty, min_rise=min_rise,
+                      min_altitude_m=min_altitude_m, envelope_s=envelope_s, min_dip_m=min_dip_m,
+                      seabed_columns=seabed_columns)
+    except _NeedFullWidth:
+        return _track(pxs, ref, np.inf, prior_m=prior_m, prior=prior, window_m=window_m,
+                      jump_penalty=jump_penalty, bright_penalty=bright_penalty, min_rise=min_rise,
+                      min_altitude_m=min_altitude_m, envelope_s=envelope_s, min_dip_m=min_dip_m,
+                      seabed_columns=seabed_columns)
+
+
+def _track(pxs: list[np.ndarray], t0: Tile, limit_m: float, *, prior_m: float | None, prior: BottomTrack | None,
+           window_m: float, jump_penalty: float, bright_penalty: float, min_rise: float, min_altitude_m: float,
+           envelope_s: float, min_dip_m: float, seabed_columns: int | None) -> BottomTrack:
+    """:func:`track_bottom` on pixel arrays sharing ``t0``'s axis, searched up to ``limit_m``;
+    raises :class:`_NeedFullWidth` when that limit may have decided the track."""
     rows, cols = t0.rows, t0.cols
+    r0, dr = t0.range0_m, t0.dr_m
     k = _window(t0, window_m)
-    ring_m = max(ringing_end_m(t, window_m=window_m) for t in tiles)
+    cropped = np.isfinite(limit_m)
+    last = int(np.floor((limit_m - r0) / dr)) if cropped else cols - 1
+    if last >= cols - 1:
+        cropped, last = False, cols - 1
+    step = 1
+    if seabed_columns is not None and seabed_columns > 0:
+        step = max((cols - 1) // int(seabed_columns), 1)
+    # columns filtered: the search range, its windows and the median's half width (exact there);
+    # with every column wanted for the seabed levels anyway, all of them
+    near = cols if not cropped or step == 1 else min(cols, max(last + k + k // 2 + 2, max(cols // 8, 2)))
+    ring_m = max(_ring_end(px, r0, dr, near, step) for px in pxs)
     lo_m = max(ring_m, float(min_altitude_m))
-    rises, total = [], np.zeros((rows, cols))
-    for t in tiles:
-        rise, score = _side_scores(t, k, lo_m, bright_penalty)
+    rises, total = [], np.zeros((rows, near))
+    for px in pxs:
+        rise, score = _side_scores(px, r0, dr, k, lo_m, bright_penalty, near, step)
         rises.append(rise)
         total += score
-    ranges = t0.range0_m + t0.dr_m * np.arange(cols)
-    states = np.flatnonzero((ranges >= lo_m) & np.isfinite(total).all(axis=0))
+    ranges = r0 + dr * np.arange(near)
+    states = np.flatnonzero((ranges >= lo_m) & (np.arange(near) <= last) & np.isfinite(total).all(axis=0))
     nan = np.full(rows, np.nan)
     if states.size == 0:
+        if cropped:
+            raise _NeedFullWidth
         return BottomTrack(nan, np.zeros(rows, bool), ring_m, nan)
     cost = -total[:, states]  # (rows, n)
     strong = np.max(np.stack([r[:, states] for r in rises]), axis=0) >= min_rise
     if not strong.any():
+        if cropped:
+            raise _NeedFullWidth
         return BottomTrack(nan, np.zeros(rows, bool), ring_m, nan)
     # Viterbi with an L1 transition cost: min_j D[j] + lam |i - j| in O(n) by two running minima
-    lam = jump_penalty * t0.dr_m
+    lam = jump_penalty * dr
     idx = np.arange(states.size, dtype=np.float64)
     acc = np.empty_like(cost)
     d = cost[0].copy()
@@ -217,13 +333,15 @@ def track_bottom(port: Tile | None, stbd: Tile | None, *, prior_m: float | None 
     path[-1] = int(np.argmin(acc[-1]))
     for r in range(rows - 2, -1, -1):
         path[r] = int(np.argmin(acc[r] + lam * np.abs(idx - path[r + 1])))
+    if cropped and states[path].max() > last - 2 * k:
+        raise _NeedFullWidth  # the track reaches the limit: what lies beyond it may be the seabed
     raw = ranges[states[path]].astype(np.float64)
     history = prior.raw_m if prior is not None and prior.raw_m is not None else None
     w = _envelope_pings(t0.ping_time, envelope_s)
     if w > 1:
         # the closing returns values of the track itself, so every ping stays on a state
         path = np.clip(np.searchsorted(ranges[states], _close_dips(raw, w, history, min_dip_m)
-                                       - 0.5 * t0.dr_m), 0, states.size - 1)
+                                       - 0.5 * dr), 0, states.size - 1)
     found = strong[np.arange(rows), path]
     return BottomTrack(ranges[states[path]].astype(np.float64), found, ring_m, raw)
 

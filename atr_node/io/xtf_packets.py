@@ -191,6 +191,14 @@ def _utc(year: int, month: int, day: int, hour: int, minute: int, second: int) -
                                       f"{second:02d} is not a time ({exc})") from None
 
 
+def fix_time(t: float, seconds_of_day: float) -> float:
+    """UNIX time of a position fix stamped with its time of day only, in the day of the ping
+    time ``t``; a fix stamped before midnight of a ping after it is in the day before (a fix is
+    never 12 h after its ping)."""
+    fix_t = t - (t % 86400.0) + seconds_of_day
+    return fix_t - 86400.0 if fix_t - t > 43200.0 else fix_t
+
+
 def _finite_or_nan(x: float) -> float:
     x = float(x)
     return x if math.isfinite(x) else math.nan
@@ -280,10 +288,7 @@ def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfS
         return None
     fix_t = math.nan
     if p.FixTimeHour or p.FixTimeMinute or p.FixTimeSecond or p.FixTimeHsecond:
-        day0 = t - (t % 86400.0)
-        fix_t = day0 + p.FixTimeHour * 3600 + p.FixTimeMinute * 60 + p.FixTimeSecond + p.FixTimeHsecond / 100.0
-        if fix_t - t > 43200.0:  # fix stamped just before midnight, ping just after
-            fix_t -= 86400.0
+        fix_t = fix_time(t, p.FixTimeHour * 3600 + p.FixTimeMinute * 60 + p.FixTimeSecond + p.FixTimeHsecond / 100.0)
     lat, lon = positions.latlon(p.SensorYcoordinate, p.SensorXcoordinate)
     if math.isnan(lat):
         lat, lon = positions.latlon(p.ShipYcoordinate, p.ShipXcoordinate)

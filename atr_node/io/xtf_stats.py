@@ -37,12 +37,15 @@ class XtfStats:
     """Pings whose tile altitude is the sonar's first return (``altitude="sonar"`` or ``auto``)."""
     altitude_source: Counter = field(default_factory=Counter)
     """Pings in tiles with nav by the source of their altitude: ``recorded``, ``image`` (the
-    first bottom return, :mod:`.xtf_bottom`)."""
+    first bottom return, :mod:`.xtf_bottom`), ``nominal`` (neither: ``sensor.altitude_m``)."""
     altitude_recorded_bad: Counter = field(default_factory=Counter)
     """Pings whose recorded altitude is ``zero``, ``missing`` (negative, not finite) or, in
     ``auto``, ``inconsistent with the image``."""
     altitude_image_carried: int = 0
     """Pings whose image altitude was carried from neighbouring pings (no clear return)."""
+    altitude_sides_resampled: int = 0
+    """Pings whose port and starboard range axes differ (sample count, spacing, first range):
+    tracked with the coarser side resampled onto the finer one's axis."""
     pings_resampled: int = 0
     """Pings whose range axis differed from their tile's below 1e-4 relative, resampled onto it."""
     nav_jumps: int = 0
@@ -65,13 +68,20 @@ class XtfStats:
         n = sum(self.altitude_source.values())
         if not n:
             return "altitude: no tile with nav"
-        img = self.altitude_source["image"]
+        img, nom = self.altitude_source["image"], self.altitude_source["nominal"]
+        rec = n - img - nom
         bad = ", ".join(f"{'0' if k == 'zero' else k} in {v}" for k, v in sorted(self.altitude_recorded_bad.items()) if v)
-        text = f"altitude: image first return for {img} of {n} pings" if img else f"altitude: recorded for {n} pings"
-        if img and img < n:
-            text += f", recorded for {n - img}"
+        if img:
+            text = f"altitude: image first return for {img} of {n} pings" + (f", recorded for {rec}" if rec else "")
+        else:
+            text = f"altitude: recorded for {rec} of {n} pings" if nom else f"altitude: recorded for {n} pings"
+        if nom:
+            text += f", nominal (sensor.altitude_m) for {nom}"
         if bad:
             text += f" (recorded altitude {bad})"
+        if self.altitude_sides_resampled:
+            text += (f"; {self.altitude_sides_resampled} pings with port and starboard on different range axes "
+                     "(tracked on one)")
         if self.altitude_image_carried:
             text += f"; {self.altitude_image_carried} pings without a clear return carried from their neighbours"
         return text

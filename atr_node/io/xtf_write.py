@@ -41,7 +41,7 @@ from .crs import projection
 from ..records.tile import Tile
 from .atrlog import LogRecord
 from .ping_writer import PairedPingWriter
-from .xtf_packets import KNOT_M_S, NOTE_PREFIX
+from .xtf_packets import NOTE_PREFIX
 
 SOUND_VELOCITY_ONE_WAY = 750.0
 FORMATS = {"uint16": (2, 3, np.dtype("<u2")), "uint8": (1, 8, np.dtype("u1")), "float32": (4, 5, np.dtype("<f4"))}
@@ -141,8 +141,7 @@ class XtfWriter(PairedPingWriter):
         first = tiles[sides[0]]
         _, _, dtype = self._format
         data = {s: _samples(tiles[s], dtype) for s in sides}
-        dt = float(np.median(np.diff(first.ping_time))) if first.rows > 1 else 0.0
-        speed_kn = first.dx_m / dt / KNOT_M_S if dt > 0 else 0.0
+        dt, speed_kn = self._interval_and_speed(first)
         x = y = None
         if first.nav is not None:
             # XTF X is longitude or easting, Y latitude or northing

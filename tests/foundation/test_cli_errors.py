@@ -79,7 +79,7 @@ OUTPUTS = ("--contacts-out", "c.jsonl", "--detections-out", "d.jsonl", "--summar
 
 
 @pytest.mark.parametrize("which, expect", [
-    ("missing", "missing.atrlog: no such file"),
+    ("missing", "missing.atrlog: cannot open: No such file"),
     ("text", "readme.atrlog: no valid record in 20000 bytes"),
     ("empty", "empty.atrlog: empty file"),
     ("nav", "nav.atrlog: no sonar tile in 12 records"),
@@ -130,7 +130,7 @@ def test_run_refuses_a_port_out_of_range(tmp_path):
 
 
 @pytest.mark.parametrize("source, expect", [
-    (("--log", "{missing}"), "missing.atrlog: no such file"),
+    (("--log", "{missing}"), "missing.atrlog: cannot open: No such file"),
     (("--log", "{text}"), "readme.atrlog: no valid record"),
     (("--log", "{nav}"), "nav.atrlog: no sonar tile in 12 records"),
     (("--contacts", "{missing_jsonl}"), "contacts file"),
@@ -172,7 +172,7 @@ def test_calibrate_refuses_a_recording_without_tiles(inputs, tmp_path):
     (("export", "--from", "foo", "-o", "x.csv", "--duration", "1"), "--from 'foo': no transport"),
     (("export", "--contacts", "missing.jsonl", "-o", "x.csv"), "missing.jsonl"),
     (("exwpt", "--from", "tcp://127.0.0.1", "--port", "loop://", "--duration", "1"), "--from 'tcp://127.0.0.1'"),
-    (("batch", "missing.atrlog", "--scheduler", "serial"), "missing.atrlog: no such file"),
+    (("batch", "missing.atrlog", "--scheduler", "serial"), "missing.atrlog: cannot open: No such file"),
     (("info", "--config", "missing.toml"), "missing.toml"),
 ])
 def test_operator_and_batch_commands_fail_in_one_line(tmp_path, args, expect):

@@ -10,15 +10,18 @@ from __future__ import annotations
 import json
 import math
 
+import cv2
 import numpy as np
 import pytest
 
 from atr_node.calibration.model import PerformanceModel
-from atr_node.config import Settings
-from atr_node.detectors.objects import find_objects
-from atr_node.fusion import snapshot
-from atr_node.fusion.contacts import Contact, ContactTracker
-from atr_node.fusion.observation import axis_heading_deg
+from atr_node.config import FusionSettings, Settings
+from atr_node.detectors.extract import Detection
+from atr_node.detectors.objects import find_objects, group_detections
+from atr_node.fusion import EvidenceGrid, snapshot
+from atr_node.fusion.contacts import Contact, ContactTracker, leg_boxes
+from atr_node.fusion.grid import DetectionRecord
+from atr_node.fusion.observation import axis_heading_deg, gate_cells
 from atr_node.io.atrlog import LogRecord
 from atr_node.node import wire
 from atr_node.node.pipeline import Pipeline
@@ -177,3 +180,182 @@ def test_wire_rejects_a_partial_or_impossible_extent():
 def test_axis_heading_is_in_0_180(deg, want):
     assert axis_heading_deg(deg) == pytest.approx(want)
     assert 0.0 <= axis_heading_deg(deg) < 180.0
+
+
+# -- one wreck, one contact, wherever the tiles were cut (review of issue 18 item 5) ---------
+
+def _random_cuts(seed: int = 11) -> list[int]:
+    """Tile boundaries (rows) of a random cut of the scene: tiles of 40 to 200 rows."""
+    rng = np.random.default_rng(seed)
+    cuts = [0]
+    while cuts[-1] < ROWS:
+        cuts.append(min(ROWS, cuts[-1] + int(rng.integers(40, 201))))
+    return cuts
+
+
+def _run_cut(cuts: list[int]):
+    """The scene fed as tiles cut at rows ``cuts``, through the real Pipeline; beside the
+    node's (incremental) tracker, a full-extraction tracker is updated on the same grid after
+    every unit and must publish the same messages."""
+    settings = Settings()
+    msgs: list[dict] = []
+    pipe = Pipeline(settings, model=PerformanceModel.shipped(), emit=msgs.append, workers=0)
+    full: list[ContactTracker] = []
+    mismatches: list[int] = []
+
+    def compare(unit, model, res) -> None:
+        if not full:
+            full.append(ContactTracker(settings.fusion, pipe.frame, gate_m=pipe.gate_m, incremental=False))
+        t = float(unit.ping_time[unit.core][-1])
+        want = [c.to_message() for c in full[0].update(pipe.grid, t)]
+        got = [{k: v for k, v in m.items() if k != "seq"} for m in msgs]
+        if got != want:
+            mismatches.append(len(pipe.stats.stages))
+        msgs.clear()
+
+    pipe.on_fused = compare
+    img = scene()
+    lat = LAT0 + np.arange(ROWS) * DX / M_PER_DEG
+    t = 1.7e9 + 0.1 * np.arange(ROWS)
+    for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
+        nav = TileNav(lat[a:b], np.full(b - a, LON0), np.zeros(b - a), np.full(b - a, 14.0))
+        m = Tile("wreck", 0, "stbd", k, img[a:b].astype(np.float32), "intensity", RANGE0, DR, DX, False, t[a:b],
+                 nav=nav).to_map()
+        pipe.feed(LogRecord(t=float(t[b - 1]) + 1.0, link="sonar", msg=m))
+    pipe.finish()
+    return pipe, mismatches
+
+
+@pytest.mark.parametrize("cut", [520, 260, 130, 64, "random"])
+def test_one_contact_for_the_wreck_however_the_tiles_are_cut(cut):
+    """SPEC 0 and ICD 3: a wreck crossing units' edges is found in pieces, one per unit; each
+    piece is emitted by the unit whose core holds its centre only, and the pieces end as one
+    contact with the extent of their union. Before: 2 contacts at 260 and 130 rows, 4 at 64."""
+    cuts = _random_cuts() if cut == "random" else list(range(0, ROWS, cut)) + [ROWS]
+    pipe, mismatches = _run_cut(cuts)
+    try:
+        # the cut splits the wreck: the units report it in pieces (else this tests nothing)
+        pieces = {(r.east_m, r.north_m) for r in pipe.grid.detections if r.length_m is not None}
+        assert len(pieces) == 1 if cut == 520 else len(pieces) >= 2, pieces
+        contacts = live(pipe)
+        near = [c for c in contacts if offset_m(c, WRECK["row"], WRECK["range_m"]) < 12.0]
+        assert len(near) == 1, [(round(offset_m(c, WRECK["row"], WRECK["range_m"]), 1), c.get("length_m"))
+                                for c in near]
+        c = near[0]
+        assert offset_m(c, WRECK["row"], WRECK["range_m"]) < 3.0, c
+        assert abs(c["length_m"] - 20.0) <= 0.2 * 20.0, c
+        assert 2.0 <= c["width_m"] <= 8.0, c
+        d = abs(c["heading_deg"] - 30.0)
+        assert min(d, 180.0 - d) <= 15.0, c
+        small = [c for c in contacts if offset_m(c, SMALL["row"], SMALL["range_m"] + 0.4) < 3.0]
+        assert len(small) == 1 and "length_m" not in small[0], small
+        # the incremental extraction published what a full one does, update after update, and
+        # no contact was withdrawn on the way (the first piece's id is the wreck's)
+        assert mismatches == []
+        assert all(c.state != "withdrawn" for c in pipe.tracker.history.values())
+    finally:
+        pipe.close()
+
+
+def test_an_object_centred_in_a_margin_is_left_to_its_unit():
+    """group_detections drops (never clamps) an object whose centre lies outside the core: the
+    neighbouring unit holds it in its core. One detection on the hull, seen from two cores."""
+    img = scene()
+    om = find_objects(img, img.mean(axis=0), dr_m=DR, dx_m=DX, template_length_m=2.0, echo_width_m=0.6,
+                      highlight=2.0, shadow=0.3, max_length_m=60.0)
+    (wreck,) = [o for o in om.objects if not o.background]
+    centre_row = round(wreck.row)
+    hull_col = round((WRECK["range_m"] - RANGE0) / DR)
+    kw = dict(range0_m=RANGE0, dr_m=DR, min_extent_m=0.3, max_extent_m=6.0)
+
+    def det(row: int, core_start: int) -> Detection:
+        """A detection on the hull (unit row ``row``, the hull's column there)."""
+        col = round((WRECK["range_m"] + (row * DX - WRECK["row"] * DX) * math.tan(math.radians(30.0)) - RANGE0) / DR)
+        assert om.owner_at(np.array([row]), np.array([col]))[0] > 0  # it lies in the wreck
+        return Detection("mf", row - core_start, col, 3.0, RANGE0 + col * DR, 1.0, 1.0, 50)
+
+    after, before = centre_row + 40, centre_row - 40  # 4 m along-track either side of the centre
+    # a core holding the centre: one detection, at the centre, with the extent
+    (got,) = group_detections([det(after, 0)], om, core_start=0, core_rows=centre_row + 100, **kw)
+    assert (got.row, got.length_m) == (centre_row, wreck.length_m)
+    # a core starting past the centre, or ending before it (the centre in its margin):
+    # nothing, where a copy clamped to the core's edge was a second contact
+    assert group_detections([det(after, centre_row + 1)], om, core_start=centre_row + 1, core_rows=200, **kw) == []
+    assert group_detections([det(before, 0)], om, core_start=0, core_rows=centre_row, **kw) == []
+    (got,) = group_detections([det(before, 0)], om, core_start=0, core_rows=centre_row + 1, **kw)
+    assert got.row == centre_row
+
+
+def _piece(leg: int, east_m: float, north_m: float, length_m: float, heading_deg: float, width_m: float = 3.0,
+           confidence: float = 0.9) -> DetectionRecord:
+    return DetectionRecord(leg, "mf", east_m, north_m, 1.0, confidence, 3.0, length_m=length_m, width_m=width_m,
+                           heading_deg=heading_deg)
+
+
+def test_leg_boxes_against_the_minimum_area_rectangle():
+    """The union of a leg's pieces: against OpenCV's minimum-area rectangle of their corners
+    (an independent algorithm: rotating calipers), for collinear pieces at several headings."""
+    rng = np.random.default_rng(3)
+    for heading in (0.0, 30.0, 90.0, 135.0, 172.0):
+        h = math.radians(heading)
+        u = np.array([math.sin(h), math.cos(h)])
+        pieces = []
+        for along in (-6.0, 1.0, 7.5):  # three pieces along the axis, overlapping
+            e, n = np.array([100.0, 200.0]) + along * u + rng.normal(0.0, 0.05, 2)
+            pieces.append(_piece(1, float(e), float(n), float(rng.uniform(6.0, 8.0)), heading))
+        (box,) = leg_boxes(pieces)
+        (ce, cn), (w, l), ang = cv2.minAreaRect(_corners_of(pieces).astype(np.float32))
+        assert box[2] == pytest.approx(max(w, l), abs=0.05) and box[3] == pytest.approx(min(w, l), abs=0.05)
+        assert (box[0], box[1]) == pytest.approx((ce, cn), abs=0.05)
+        d = abs(box[4] - heading) % 180.0
+        assert min(d, 180.0 - d) < 1.0
+    # legs are not joined; one leg's copies of a footprint (its detectors) count once
+    boxes = leg_boxes([_piece(1, 0.0, 0.0, 10.0, 0.0), _piece(1, 0.0, 0.0, 10.0, 0.0), _piece(2, 1.0, 0.0, 10.0, 0.0)])
+    assert [round(b[2], 9) for b in boxes] == [10.0, 10.0] and boxes[0][5] == pytest.approx(0.9)
+
+
+def _corners_of(pieces) -> np.ndarray:
+    """Corners (east, north) of pieces, written out independently of the module's code."""
+    out = []
+    for p in pieces:
+        h = math.radians(p.heading_deg)
+        for sa, sb in ((1, 1), (1, -1), (-1, -1), (-1, 1)):
+            out.append((p.east_m + sa * p.length_m / 2 * math.sin(h) + sb * p.width_m / 2 * math.cos(h),
+                        p.north_m + sa * p.length_m / 2 * math.cos(h) - sb * p.width_m / 2 * math.sin(h)))
+    return np.array(out)
+
+
+def _deposit(grid: EvidenceGrid, rec: DetectionRecord, gate_m: float) -> None:
+    grid.detections.append(rec)
+    iy, ix = gate_cells(rec.east_m, rec.north_m, gate_m=gate_m, cell_m=grid.cell_m)
+    grid.deposit(rec.leg, rec.detector, rec.t, iy, ix, m_t=0.9)
+
+
+def test_touching_pieces_are_one_contact_and_apart_ones_are_not(frame):
+    """Two 10 m pieces of one hull along grid north, centres 9.5 m apart (their footprints
+    overlap by 0.5 m), each in a region of its own: one contact, 19.5 m long, at the union's
+    centre. A third piece 4 m beyond (a gap over TOUCH_M) and a small object beside the hull
+    stay contacts of their own. Incremental and full extraction agree, a restore changes
+    nothing."""
+    fusion = FusionSettings()
+    grid = EvidenceGrid(fusion, gate_m=3.0)
+    inc = ContactTracker(fusion, frame, gate_m=3.0)
+    full = ContactTracker(fusion, frame, gate_m=3.0, incremental=False)
+    recs = [_piece(1, 50.0, 40.0, 10.0, 0.0), _piece(1, 50.0, 49.5, 10.0, 0.0, confidence=0.5),
+            _piece(1, 50.0, 68.5, 10.0, 0.0),
+            DetectionRecord(1, "mf", 58.0, 45.0, 1.0, 0.9, 3.0)]  # small: 6.5 m beside the hull's edge
+    for i, r in enumerate(recs):
+        _deposit(grid, r, 3.0)
+        got = [c.to_message() for c in inc.update(grid, 10.0 + i)]
+        assert got == [c.to_message() for c in full.update(grid, 10.0 + i)], i
+    cs = sorted(inc.live.values(), key=lambda c: c.north_m)
+    assert len(cs) == 3, cs
+    hull, small, third = cs[0], cs[1], cs[2]
+    assert (hull.length_m, hull.width_m) == pytest.approx((19.5, 3.0), abs=1e-6)
+    assert hull.heading_deg == pytest.approx(0.0, abs=0.01)  # grid north, plus the meridian convergence
+    assert (hull.east_m, hull.north_m) == pytest.approx((50.0, 44.75), abs=1e-9)  # not the weighted mean 43.2
+    assert hull.detections == 2 and hull.id == 1  # the first piece's contact, updated: its id kept
+    assert small.length_m is None and (small.east_m, small.north_m) == (58.0, 45.0)
+    assert third.length_m == pytest.approx(10.0) and third.north_m == pytest.approx(68.5)
+    inc.restore(inc.state())
+    assert inc.update(grid, 20.0) == [] and full.update(grid, 20.0) == []

@@ -227,4 +227,4 @@ def test_exwpt_command_errors_are_clear():
     assert r.returncode == 1 and "cannot open it" in r.stderr and "/dev/nonexistent-tty" in r.stderr
     r = subprocess.run([sys.executable, "-m", "atr_node", "exwpt", "--from", "localhost:5560", "--port", "loop://",
                         "--duration", "0.1"], capture_output=True, text=True, timeout=60)
-    assert r.returncode == 1 and "cannot subscribe to 'localhost:5560'" in r.stderr
+    assert r.returncode == 1 and "--from 'localhost:5560': no transport" in r.stderr

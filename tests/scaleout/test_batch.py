@@ -117,7 +117,8 @@ def test_command_serial_writes_contacts_and_summary(tiny_missions, tmp_path):
     assert len(lines) == s["contacts"] > 0 and all(c["type"] == "contact" for c in lines)
     r = subprocess.run([sys.executable, "-m", "atr_node", "batch", str(tmp_path / "nope.atrlog"), "--scheduler",
                         "serial", "--retries", "0", "--quiet"], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 1 and "FAILED nope.atrlog after 1 attempts" in r.stderr
+    # a missing file on a local engine is bad input, told in one line before any task (issue 20)
+    assert r.returncode == 1 and r.stderr.count("\n") == 1 and "nope.atrlog: cannot open" in r.stderr
 
 
 def test_a_real_xtf_recording_goes_through_and_frames_are_checked(real_data, tiny_missions):

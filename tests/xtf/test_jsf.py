@@ -92,12 +92,12 @@ def test_validity_flags_and_coordinate_units_decide_what_is_used(tmp_path):
     path.write_bytes(spec_ping(channel=1, samples=env, n=8, validity=0b1000))
     (ping,) = iter_jsf_items(path, JsfStats())
     assert math.isnan(ping.nav.lat_deg) and math.isnan(ping.nav.altitude_m) and ping.nav.heading_deg == 123.45
-    # units 3 (X, Y in dm, projected): not used without a CRS, said once; used with one
+    # units 3 (X, Y in dm, projected): refused without a CRS (one line naming --crs:
+    # test_reading_robustness.py); used with one
     path.write_bytes(b"".join(spec_ping(channel=1, samples=env, n=8, units=3, ping_number=k, x=5_000_000,
                                         y=50_000_000) for k in range(3)))
-    stats = JsfStats()
-    assert all(math.isnan(p.nav.lat_deg) for p in iter_jsf_items(path, stats))
-    assert len(stats.errors) == 1 and "coordinate units 3" in stats.errors[0] and "--crs" in stats.errors[0]
+    with pytest.raises(LogFormatError, match="--crs"):
+        list(iter_jsf_items(path, JsfStats()))
     records = list(JsfReader(path, crs="EPSG:32619", altitude="altimeter"))
     tile = Tile.from_map(next(r.msg for r in records if r.link == "sonar"))
     # UTM 19N, E 500 000 m (the central meridian, 69 W), N 5 000 000 m: 45.1 N (pyproj)
