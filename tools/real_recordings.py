@@ -48,7 +48,7 @@ MARKS = {
     "river-000_1236": [("port", 330, 23.5, "port object (by eye)"), ("stbd", 925, 29.0, "starboard object (by eye)")],
     "scotsman-iver2": [("stbd", 281, 4.06, "hit 1 138 281 (wreck)")],
 }
-WRECKS = {"scotsman-iver2": ("stbd", 160, 400, 14.0)}
+WRECKS = {"scotsman-iver2": ("stbd", 160, 400, 16.5)}  # the hull ends at about 16 m slant
 MATCH_M = 3.0
 
 

@@ -10,7 +10,7 @@ snapshot's position are replayed first, so no accepted tile's evidence is lost a
 crash or a restart. SIGTERM (or SIGINT, Ctrl-C) drains, snapshots and exits 0. Under systemd
 (Type=notify) it reports READY and feeds the watchdog.
 
-It logs at INFO by default (``-v`` for debug): the endpoints and socket types, which links
+It logs at INFO by default (``-vv`` for debug): the endpoints and socket types, which links
 are configured, the model in use, "waiting for the first tile", the first tile in, and a
 one-line summary at exit (tiles in/done/rejected/dropped, contacts, uptime).
 """

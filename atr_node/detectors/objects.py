@@ -31,13 +31,19 @@ extent. Why the centre and not the strongest anchor: on a wreck the anchors lie 
 (the echo/shadow boundary), metres from the object and from each other depending on the
 detector; the centre is the same for every detector and every look, so the looks of one
 wreck deposit their evidence at one place, and it is what an operator sends a vehicle to.
+Only the unit whose core holds the centre emits the object; a neighbour that sees it with
+its centre in a margin drops it (clamped into its core it was a second contact, a few metres
+off, depending on where the tiles were cut). A wreck longer than a unit's margins is still
+seen in pieces, one per unit, each centred in its own core: the contacts join them
+(``fusion/contacts.py``, footprints that overlap or touch are one contact).
 Detections in background objects are dropped; all others are kept as
 :func:`~.extract.find_detections` gives them (extent filter ``[min_extent_m, max_extent_m]``
 included: detections are extracted without the upper bound, which is applied here, so a
 component too long for a mine still counts when it lies on a wreck).
 
 The cost is one pass over the unit's pixels (division and block sums) and a few small-image
-operations: about 10 ms per 1.5-Mpx unit (docs/detectors.md).
+operations: about 10 ms per 1.5-Mpx unit (docs/detectors.md), spent only on units where a
+detector has a detection (``node/detect.py``).
 """
 
 from __future__ import annotations

@@ -12,6 +12,12 @@ going to the nearest group. A contact's position comes from its detections
 ``nav_sigma_m`` in quadrature); ``bel``, ``pl`` and ``m_theta`` are those of the region's
 peak cell.
 
+Extended objects (a wreck, ``detectors/objects.py``) come from the detect stage in pieces when
+they cross units' edges, one per unit, each at its own centre: components whose detections'
+object footprints overlap or touch are one contact (:meth:`ContactTracker._merge_objects`),
+its position and extent those of the union of the footprints (:func:`contact_position`,
+:func:`extent_fields`), so one wreck is one contact wherever the tiles were cut.
+
 Ids stay stable: after each update, regions are matched one-to-one to the live contacts by
 nearest position within the association gate; a region without a match becomes a new
 contact, a live contact without a region is withdrawn. Only chunks of the grid changed since

@@ -265,7 +265,6 @@ def test_an_object_centred_in_a_margin_is_left_to_its_unit():
                       highlight=2.0, shadow=0.3, max_length_m=60.0)
     (wreck,) = [o for o in om.objects if not o.background]
     centre_row = round(wreck.row)
-    hull_col = round((WRECK["range_m"] - RANGE0) / DR)
     kw = dict(range0_m=RANGE0, dr_m=DR, min_extent_m=0.3, max_extent_m=6.0)
 
     def det(row: int, core_start: int) -> Detection:
