@@ -103,6 +103,7 @@ def scipy_scores(x: np.ndarray, template: TemplateSettings, settings: DetectorSe
     seg = np.where(valid, seg, 0.0)
     mask = valid.astype(np.float64)
     w, ln, f = g.echo_px, g.length_px, settings.min_valid_fraction
+    fz = max(settings.min_valid_fraction_zones, f)  # echo and shadow zones; the SMF context: f
     cl = g.ctx_row1 - g.ctx_row0
     out = {d: np.full((rows, cols), np.nan) for d in DETECTOR_NAMES}
     reach = max(g.reach())
@@ -119,7 +120,7 @@ def scipy_scores(x: np.ndarray, template: TemplateSettings, settings: DetectorSe
 
         n_e, n_s, n_c = sums(mask, -w, w), sums(mask, 0, s), sums(mask, cc0, cw, g.ctx_row0, cl)
         with np.errstate(all="ignore"):
-            ok_e, ok_s, ok_c = n_e >= f * w * ln - 1e-6, n_s >= f * s * ln - 1e-6, n_c >= f * cw * cl - 1e-6
+            ok_e, ok_s, ok_c = n_e >= fz * w * ln - 1e-6, n_s >= fz * s * ln - 1e-6, n_c >= f * cw * cl - 1e-6
             mu_e, mu_s = sums(i_n, -w, w) / n_e, sums(i_n, 0, s) / n_s
             var = np.maximum(sums(i_n * i_n, 0, s) / n_s - mu_s * mu_s, 0.0)
             mf = sums(jj, -w, w) / n_e - sums(jj, 0, s) / n_s

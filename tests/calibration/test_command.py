@@ -50,7 +50,7 @@ def test_calibrate_on_a_recording(tmp_path):
 
 def test_calibrate_reports_bad_input(tmp_path, capsys):
     assert main(["calibrate", "--input", str(tmp_path / "absent.atrlog"), "--no-plots"]) == 1
-    assert "no such file" in capsys.readouterr().err
+    assert "no such file" in capsys.readouterr().err.lower()
     bad = tmp_path / "x.png"
     bad.write_bytes(b"not a picture")
     assert main(["calibrate", "--input", str(bad), "--no-plots"]) == 1
