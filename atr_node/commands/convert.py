@@ -81,13 +81,15 @@ def atrlog_to_xtf(src: Path, dst: Path, *, crs: str = "") -> str:
         for rec in reader:
             w.write_record(rec)
     s = w.stats
-    lines = [f"{src}: {reader.records} records read, {reader.rejected} rejected"
+    lines = [f"{src}: {reader.records} records read, "
+             + (reader.summary_text() if reader.rejected else "0 rejected")
              + (" (truncated last record)" if reader.truncated else ""),
              f"wrote {s.pings} pings from {s.tiles} tiles to {dst}"
              + (f" ({s.unpaired_tiles} tiles without their other side)" if s.unpaired_tiles else "")]
     if s.skipped:
         lines.append("  not in XTF: " + ", ".join(f"{k} records {v}" for k, v in sorted(s.skipped.items())))
-    lines.extend(f"  rejected tile: {r}" for r in s.rejected)
+    if s.rejected:  # counted, never listed one by one: the first says what was wrong
+        lines.append(f"  {len(s.rejected)} tile record(s) not written (not a valid tile), e.g. {s.rejected[0]}")
     return "\n".join(lines)
 
 
