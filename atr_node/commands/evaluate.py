@@ -29,6 +29,7 @@ from pathlib import Path
 from ..config import load_settings
 from ..errors import AtrError
 from ._endpoints import check_endpoint
+from ..operators.book import read_contacts
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -60,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
 
         require_sonar_tile(args.log, crs=resolve_crs(None, settings))
     elif args.contacts:
-        _check_contacts_file(args.contacts)
+        read_contacts(args.contacts)  # one line on a bad file, before --out exists
     else:
         check_endpoint(args.subscribe, "--subscribe")
     out = Path(args.out)
@@ -75,37 +76,8 @@ def run(args: argparse.Namespace) -> int:
         raise
 
 
-def _check_contacts_file(path: str) -> None:
-    """Fail in one line unless ``path`` holds contacts as JSON lines with a position and a
-    belief (``atr-node replay --contacts-out``)."""
-    p = Path(path)
-    try:
-        fh = open(p, encoding="utf-8")
-    except OSError as exc:
-        raise AtrError(f"contacts file {p}: {exc.strerror or exc}; expected the JSON lines of "
-                       f"atr-node replay --contacts-out") from None
-    with fh:
-        try:
-            for line, text in enumerate(fh, start=1):
-                if not text.strip():
-                    continue
-                try:
-                    c = json.loads(text)
-                except json.JSONDecodeError as exc:
-                    raise AtrError(f"contacts file {p}, line {line}: not JSON ({exc.msg}); expected one contact "
-                                   f"object per line (atr-node replay --contacts-out)") from None
-                bad = [k for k in ("lat_deg", "lon_deg", "bel") if not isinstance(c, dict)
-                       or isinstance(c.get(k), bool) or not isinstance(c.get(k), (int, float))]
-                if bad:
-                    raise AtrError(f"contacts file {p}, line {line}: no number for {', '.join(bad)}; expected a "
-                                   f"contact object (ICD section 3)")
-        except UnicodeDecodeError:
-            raise AtrError(f"contacts file {p}: not text; expected the JSON lines of atr-node replay "
-                           f"--contacts-out") from None
-
-
 def _evaluate(args: argparse.Namespace, settings, out: Path) -> int:
-    from ..evaluation.scoring import contacts_from_jsonl, read_truth, score_contacts
+    from ..evaluation.scoring import read_truth, score_contacts
 
     out.mkdir(parents=True, exist_ok=True)
     bel = args.bel if args.bel is not None else settings.fusion.report_bel
@@ -122,7 +94,8 @@ def _evaluate(args: argparse.Namespace, settings, out: Path) -> int:
         print(text)
         return 0
     if args.contacts:
-        contacts = contacts_from_jsonl(args.contacts)
+        # every contact's final message, the withdrawn ones too (scoring keeps what it counts)
+        contacts = read_contacts(args.contacts).contacts(include_withdrawn=True)
     else:
         contacts = _listen(args.subscribe, args.duration)
     # the same scoring as the demo's node row (one function, atr_node.evaluation.scoring)

@@ -222,19 +222,3 @@ def score_contacts(contacts: Sequence[dict[str, Any]], truth: Sequence[TruthTarg
     n = int(keep.sum())
     point = OperatingPoint(float(bel), len(m) / max(len(truth), 1), n - len(m), n, len(m))
     return ContactScore(curve, point, float(bel), len(truth), len(live))
-
-
-def contacts_from_jsonl(path: str | Path) -> list[dict[str, Any]]:
-    """Contacts written by ``--contacts-out`` (final states); errors name the line."""
-    import json
-
-    out = []
-    with open(path) as fh:
-        for line, text in enumerate(fh, start=1):
-            if not text.strip():
-                continue
-            try:
-                out.append(json.loads(text))
-            except json.JSONDecodeError as exc:
-                raise AtrError(f"contacts file {path}, line {line}: not JSON ({exc.msg})") from None
-    return out
