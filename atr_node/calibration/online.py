@@ -92,6 +92,22 @@ def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any) -> None:
         results.put(("error", f"{type(exc).__name__}: {exc}"))
 
 
+def _start_ignoring_sigint(proc: Any) -> None:
+    """Start ``proc`` with SIGINT ignored from its first instruction: a spawned child inherits
+    an ignored signal through exec, so a Ctrl-C to the process group while the child is still
+    importing cannot print a KeyboardInterrupt traceback there (the node stops the worker
+    itself). Only the main thread can change a handler; elsewhere the child starts as it is."""
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread
+        proc.start()
+        return
+    try:
+        proc.start()
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
 class OnlineCalibrator:
     """The node's handle on the on-line calibration worker.
 
@@ -136,7 +152,7 @@ class OnlineCalibrator:
         self._results = ctx.Queue(maxsize=1)
         self._proc = ctx.Process(target=_worker, args=(settings, self.n_tiles, self._tiles, self._results),
                                  name="atr-online-calibration", daemon=True)
-        self._proc.start()
+        _start_ignoring_sigint(self._proc)
         self._done = False
 
     @property
@@ -220,7 +236,11 @@ class OnlineCalibrator:
             self._wait_for_answer(stop, deadline, poll_s)
         finally:
             self.waiting_since = None
-        if stop is not None and self._pending is None and self.error is None:
+        if stop is not None and self._pending is None and stop():
+            # a stop request (a signal to the node): nothing taken, the tiles stay held. A
+            # worker that died meanwhile died of the same signal (Ctrl-C reaches the process
+            # group): not a calibration failure; a resumed node calibrates afresh
+            self.error = None
             return False
         self._take(from_tile)
         return True
@@ -236,7 +256,7 @@ class OnlineCalibrator:
             self._poll(min(poll_s, left))
             if self._pending is None and not self._proc.is_alive():
                 self._poll(0.5)  # its answer may still be in the pipe
-                if self._pending is None:
+                if self._pending is None and not (stop is not None and stop()):
                     self.error = f"the worker exited with code {self._proc.exitcode} and no answer"
                     return
 
