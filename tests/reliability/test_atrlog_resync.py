@@ -215,3 +215,16 @@ def test_a_record_far_in_time_after_garbage_needs_a_second_one(tmp_path):
     # the first late record is followed by garbage: skipped with it; the next two are believed
     assert got == [1.7e9, 1.7e9 + 864000.0, 1.7e9 + 864000.0]
     assert reader.skipped_bytes == 5 + len(late) + 7
+
+
+def test_a_look_alike_head_swallowing_the_next_record_does_not_hide_it(tmp_path):
+    """Garbage b"\\x00\\xde\\x00" before a record: at byte 1 a map16 header (0xde 0x00 0x83, the
+    record's own fixmap byte read as its size) is followed by the record's key "t", so it looks
+    like a record head, and its frame runs past the end. The record starting inside it, at byte 3,
+    must still be found (found by the Hypothesis property above)."""
+    path = tmp_path / "head.atrlog"
+    rec = msgpack.packb({"t": 1.7e9, "link": "nmea", "msg": b"$GPHDT,1.0,T*00"}, use_bin_type=True)
+    path.write_bytes(b"\x00\xde\x00" + rec)
+    reader = AtrLogReader(path)
+    assert [(r.t, r.link, r.msg, r.offset) for r in reader] == [(1.7e9, "nmea", b"$GPHDT,1.0,T*00", 3)]
+    assert reader.skipped_bytes == 3 and dict(reader.reasons) == {"garbage skipped": 1}
