@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import Any, Mapping
-from urllib.parse import urlsplit
 
 import zmq
 
@@ -204,8 +204,17 @@ def request_snapshot(endpoint: str, *, timeout_s: float = 2.0, curve: Any = None
             sock.connect(endpoint)
         except zmq.ZMQError as exc:
             raise AtrError(f"snapshot endpoint {endpoint!r}: {exc}; expected e.g. tcp://127.0.0.1:5561") from None
-        sock.send(wire.SNAPSHOT_REQUEST)
-        if not sock.poll(int(timeout_s * 1000)):
+        # the send waits too, within the same time: a REQ socket whose peer refused it (a wrong
+        # CURVE key) has no pipe to send on, and a plain send would block for ever (found in CI
+        # under load)
+        deadline = time.monotonic() + timeout_s
+        try:
+            if not sock.poll(int(timeout_s * 1000), zmq.POLLOUT):
+                raise zmq.Again()
+            sock.send(wire.SNAPSHOT_REQUEST, zmq.NOBLOCK)
+        except zmq.Again:
+            raise AtrError(f"no snapshot from {endpoint} within {timeout_s:g} s") from None
+        if not sock.poll(max(int((deadline - time.monotonic()) * 1000), 0)):
             raise AtrError(f"no snapshot from {endpoint} within {timeout_s:g} s")
         frames = sock.recv_multipart()
     finally:
