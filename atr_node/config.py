@@ -309,7 +309,13 @@ class CalibrationSettings:
 
     targets_per_image: int = 40
     iterations: int = 50
+    prior: Literal["area", "fixed"] = "area"
+    """Where P(T) per template-sized cell comes from (SPEC 6.1): ``"area"`` from
+    ``target_density_km2`` and the cell's area, ``"fixed"`` = ``prior_target`` (the paper)."""
+    target_density_km2: float = 2000.0
+    """Expected targets per km^2 for ``prior = "area"`` (docs/calibration.md says why 2000)."""
     prior_target: float = 0.1
+    """P(T) per cell for ``prior = "fixed"`` (the paper's 0.1)."""
     pd_target: float = 0.95
     range_bin_m: float = 10.0
     online: bool = True
@@ -344,6 +350,8 @@ class CalibrationSettings:
                 "tile 1 (remove the key)", self.online_switch_tile)
         _check(self.iterations >= 1, "calibration.iterations", "must be >= 1")
         _check(0.0 < self.prior_target < 1.0, "calibration.prior_target", "must be in (0, 1)")
+        _check(self.prior in ("area", "fixed"), "calibration.prior", "must be 'area' or 'fixed'")
+        _check(0.0 < self.target_density_km2 <= 1e6, "calibration.target_density_km2", "must be in (0, 1e6]")
         _check(0.0 < self.pd_target < 1.0, "calibration.pd_target", "must be in (0, 1)")
         _check(self.range_bin_m > 0, "calibration.range_bin_m", "must be > 0")
         _check(self.online_tiles >= 1, "calibration.online_tiles", "must be >= 1")
@@ -372,8 +380,12 @@ class FusionSettings:
     """A reported contact whose Bel(T) falls below this is withdrawn (hysteresis)."""
     diagnostics: bool = False
     """Keep per-detector accumulators per cell as well."""
+    evidence: Literal["look", "paper"] = "look"
+    """(SPEC 6.1) ``"look"``: one piece of evidence per look (leg pass) and cell from the
+    detectors' joint behaviour; ``"paper"``: one per detector, detectors independent."""
 
     def __post_init__(self) -> None:
+        _check(self.evidence in ("look", "paper"), "fusion.evidence", "must be 'look' or 'paper'")
         _check(0.05 <= self.cell_m <= 5.0, "fusion.cell_m", "must be in [0.05, 5] m")
         _check(8 <= self.chunk_cells <= 1024, "fusion.chunk_cells", "must be in [8, 1024]")
         _check(0.0 < self.eps < 1e-2, "fusion.eps", "must be in (0, 0.01)")

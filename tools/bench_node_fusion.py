@@ -42,7 +42,9 @@ def mission_settings(args: argparse.Namespace):
                               mission_leg_length_m=60.0 if args.quick else 200.0,
                               mission_swath_m=40.0 if args.quick else args.swath_m,
                               mission_tile_pings=256 if args.quick else args.tile_pings)
-    return base.replace(simulation=sim)
+    # per-detector evidence: four layers per leg, the heavier deposit (and the form a
+    # reference copy of an older fusion package also takes, for bench_fusion_ab)
+    return base.replace(simulation=sim, fusion=dataclasses.replace(base.fusion, evidence="paper"))
 
 
 def record_calls(settings, atrlog: Path) -> tuple[list[tuple], object, int]:

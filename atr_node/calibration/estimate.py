@@ -14,6 +14,7 @@ import numpy as np
 
 from .. import __version__
 from ..config import CalibrationSettings, ThresholdSettings
+from .looks import area_prior, estimate_looks
 from .model import DetectorPerformance, PerformanceModel
 from .responses import Responses
 from .stats import confidence_curve, dobeck_threshold, pd_curve, range_edges
@@ -26,7 +27,7 @@ with fewer it reads the whole population (and the provenance says so)."""
 
 def estimate_detector(x_t: np.ndarray, x_n: np.ndarray, ranges_m: np.ndarray, *, calibration: CalibrationSettings,
                       default_tau: float, tau: float | None = None, edges_m: np.ndarray | None = None,
-                      tau_from: np.ndarray | None = None) -> DetectorPerformance:
+                      tau_from: np.ndarray | None = None, prior_target: float | None = None) -> DetectorPerformance:
     """One detector's estimates.
 
     Parameters
@@ -42,6 +43,8 @@ def estimate_detector(x_t: np.ndarray, x_n: np.ndarray, ranges_m: np.ndarray, *,
     tau_from : (m,) bool, optional
         The target responses Dobeck's rule reads (e.g. the nominal population's); default
         all. The confidence and P(y) always use every target response.
+    prior_target : float, optional
+        P(T) per cell (default ``calibration.prior_target``).
     """
     x_t = np.asarray(x_t, dtype=np.float64)
     finite = x_t[np.isfinite(x_t)]
@@ -53,7 +56,7 @@ def estimate_detector(x_t: np.ndarray, x_n: np.ndarray, ranges_m: np.ndarray, *,
         tau, source = dobeck_threshold(sel, calibration.pd_target, default=default_tau), "dobeck"
     else:
         tau, source = float(default_tau), "config"
-    conf = confidence_curve(x_t, x_n, tau, prior_target=calibration.prior_target,
+    conf = confidence_curve(x_t, x_n, tau, prior_target=calibration.prior_target if prior_target is None else prior_target,
                             n_points=calibration.confidence_points, smoothing=calibration.smoothing)
     pyr = pd_curve(ranges_m, x_t, tau, bin_m=calibration.range_bin_m, edges_m=edges_m,
                    smoothing=calibration.smoothing)
@@ -78,11 +81,15 @@ def estimate_model(responses: Responses, *, calibration: CalibrationSettings,
     nominal = responses.nominal
     on_nominal = calibration.population.threshold_on == "nominal" and int(nominal.sum()) >= MIN_NOMINAL
     tau_from = nominal if on_nominal else None
+    prior, prior_info = cell_prior(calibration, responses.provenance)
     dets = {}
     for d in responses.detectors:
         dets[d] = estimate_detector(responses.target[d], responses.nontarget[d], responses.target_range_m,
                                     calibration=calibration, default_tau=getattr(thresholds, d),
-                                    tau=None if taus is None else taus.get(d), edges_m=edges, tau_from=tau_from)
+                                    tau=None if taus is None else taus.get(d), edges_m=edges, tau_from=tau_from,
+                                    prior_target=prior)
+    looks = estimate_looks(responses, {d: p.tau for d, p in dets.items()}, calibration=calibration,
+                           prior_target=prior, edges_m=edges)
     prov: dict[str, Any] = {
         "created_utc": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
         "atr_node_version": __version__,
@@ -91,10 +98,30 @@ def estimate_model(responses: Responses, *, calibration: CalibrationSettings,
     }
     prov.update(dict(responses.provenance))
     prov.update(dict(provenance or {}))
-    est = {"prior_target": calibration.prior_target, "pd_target": calibration.pd_target,
+    est = {"prior_target": prior, **prior_info, "pd_target": calibration.pd_target,
            "range_bin_m": calibration.range_bin_m, "smoothing": calibration.smoothing,
            "confidence": "P(T | Gamma >= gamma) among responses above tau (SPEC 5, paper eq. 6)",
            "pd": "detected / injected per range bin, Jeffreys-smoothed, Wilson 95 %; 0 outside the span",
            "threshold_on": ("nominal" if on_nominal else "population"),
            "n_threshold_targets": int(nominal.sum()) if on_nominal else int(responses.n_targets)}
-    return PerformanceModel(detectors=dets, provenance=prov, estimation=est)
+    return PerformanceModel(detectors=dets, provenance=prov, estimation=est, looks=looks)
+
+
+DEFAULT_CELL_AREA_M2 = 5.0
+"""Area of a template-sized cell when the responses do not record it (L = 2 m by W + S of
+about 2.5 m at mid-range)."""
+
+
+def cell_prior(calibration: CalibrationSettings, provenance: Mapping[str, Any]) -> tuple[float, dict[str, Any]]:
+    """P(T) per template-sized cell (SPEC 6.1) and what the model file records about it.
+
+    ``prior = "area"``: ``1 - exp(-rho A)`` with ``rho`` = ``target_density_km2`` and ``A`` the
+    mean area of the non-target cells the responses were measured on (``cell_area_m2`` in
+    their provenance); ``"fixed"``: ``prior_target``.
+    """
+    if calibration.prior == "fixed":
+        return float(calibration.prior_target), {"prior": "fixed"}
+    area = provenance.get("cell_area_m2")
+    area = float(area) if isinstance(area, (int, float)) and np.isfinite(area) and area > 0 else DEFAULT_CELL_AREA_M2
+    return area_prior(calibration.target_density_km2, area), {
+        "prior": "area", "target_density_km2": float(calibration.target_density_km2), "cell_area_m2": area}

@@ -77,6 +77,8 @@ class PerformanceModel:
     detectors: Mapping[str, DetectorPerformance]
     provenance: Mapping[str, Any] = field(default_factory=dict)
     estimation: Mapping[str, Any] = field(default_factory=dict)
+    looks: Any = None
+    """:class:`~atr_node.calibration.looks.LookModel` (SPEC 6.1), None in older files."""
 
     def __post_init__(self) -> None:
         # A private copy (a plain dict, so the model pickles for worker processes).
@@ -102,6 +104,42 @@ class PerformanceModel:
         """Pd_d(r; tau_d) at ground ranges, 0 outside the calibrated span."""
         return self._get(detector).pd_at(range_m)
 
+    def look(self, detectors) -> DetectorPerformance | None:
+        """The look-level table (SPEC 6.1) of a detector set, None when the model has none."""
+        return None if self.looks is None else self.looks.table(detectors)
+
+    def look_score(self, responses, detectors) -> np.ndarray:
+        """The look score z of joint responses (``responses[d]`` per detector)."""
+        return self.looks.score(responses, detectors)
+
+    @property
+    def prior_target(self) -> float:
+        """P(T) per cell the confidence tables were made with."""
+        return float(self.estimation.get("prior_target", 0.1))
+
+    def with_prior(self, prior_target: float) -> "PerformanceModel":
+        """This model with every confidence table (detectors and looks) read under another
+        P(T) per cell (:func:`~atr_node.calibration.looks.with_prior`): e.g. the paper's 0.1
+        for a comparison, without calibrating again."""
+        import dataclasses
+
+        from .looks import LookModel, with_prior
+
+        old = self.prior_target
+
+        def conv(p: DetectorPerformance) -> DetectorPerformance:
+            c = p.confidence
+            nc = dataclasses.replace(c, confidence=np.clip(with_prior(c.confidence, old, prior_target), 1e-15,
+                                                           1.0 - 1e-15),
+                                     raw=None if c.raw is None else with_prior(c.raw, old, prior_target))
+            return dataclasses.replace(p, confidence=nc)
+
+        looks = None if self.looks is None else LookModel(
+            self.looks.tails, {k: conv(p) for k, p in self.looks.tables.items()}, self.looks.info)
+        est = dict(self.estimation)
+        est.update({"prior_target": float(prior_target), "prior": "fixed", "prior_from": old})
+        return PerformanceModel({d: conv(p) for d, p in self.detectors.items()}, self.provenance, est, looks)
+
     def thresholds(self):
         """The thresholds as :class:`~atr_node.config.ThresholdSettings` (config values for
         detectors this model lacks)."""
@@ -120,23 +158,15 @@ class PerformanceModel:
         return body
 
     def _content(self) -> dict[str, Any]:
-        dets = {}
-        for name, p in self.detectors.items():
-            c, y = p.confidence, p.pyr
-            dets[name] = {
-                "tau": float(p.tau), "tau_source": p.tau_source, "pd_at_tau": _num(p.pd_at_tau),
-                "confidence": {"gamma": c.gamma.tolist(), "c": c.confidence.tolist(),
-                               "isotonic_adjusted": bool(c.isotonic_adjusted),
-                               "max_adjustment": float(c.max_adjustment),
-                               "n_target_above": int(c.n_target_above),
-                               "n_nontarget_above": int(c.n_nontarget_above)},
-                "pyr": {"edges_m": y.edges_m.tolist(), "injected": y.injected.tolist(),
-                        "detected": y.detected.tolist(), "pd": y.pd.tolist(),
-                        "low": y.low.tolist(), "high": y.high.tolist()},
-            }
-        return {"format": FORMAT_NAME, "format_version": FORMAT_VERSION,
+        body = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION,
                 "provenance": _jsonable(dict(self.provenance)),
-                "estimation": _jsonable(dict(self.estimation)), "detectors": dets}
+                "estimation": _jsonable(dict(self.estimation)),
+                "detectors": {name: _detector_dict(p) for name, p in self.detectors.items()}}
+        if self.looks is not None:
+            from .looks import looks_to_dict
+
+            body["looks"] = _jsonable(looks_to_dict(self.looks, _detector_dict))
+        return body
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the model file (atomically: a temporary file renamed over ``path``)."""
@@ -192,8 +222,13 @@ class PerformanceModel:
         if not dets_raw:
             raise _err(where, "detectors", "no detector in the model")
         dets = {name: _detector_from(raw, where, name) for name, raw in dets_raw.items()}
+        looks = None
+        if "looks" in body:
+            from .looks import looks_from_dict
+
+            looks = looks_from_dict(body["looks"], where, lambda raw, w, key: _detector_from(raw, w, key, pre=key + "."))
         return cls(detectors=dets, provenance=_req(body, "provenance", dict, where),
-                   estimation=_req(body, "estimation", dict, where))
+                   estimation=_req(body, "estimation", dict, where), looks=looks)
 
     @classmethod
     def shipped(cls) -> "PerformanceModel":
@@ -254,8 +289,23 @@ def _arr(obj: dict[str, Any], key: str, where: str, prefix: str, n: int | None =
     return a
 
 
-def _detector_from(raw: Any, where: str, name: str) -> DetectorPerformance:
-    pre = f"detectors.{name}."
+def _detector_dict(p: DetectorPerformance) -> dict[str, Any]:
+    c, y = p.confidence, p.pyr
+    return {
+        "tau": float(p.tau), "tau_source": p.tau_source, "pd_at_tau": _num(p.pd_at_tau),
+        "confidence": {"gamma": c.gamma.tolist(), "c": c.confidence.tolist(),
+                       "isotonic_adjusted": bool(c.isotonic_adjusted),
+                       "max_adjustment": float(c.max_adjustment),
+                       "n_target_above": int(c.n_target_above),
+                       "n_nontarget_above": int(c.n_nontarget_above)},
+        "pyr": {"edges_m": y.edges_m.tolist(), "injected": y.injected.tolist(),
+                "detected": y.detected.tolist(), "pd": y.pd.tolist(),
+                "low": y.low.tolist(), "high": y.high.tolist()},
+    }
+
+
+def _detector_from(raw: Any, where: str, name: str, pre: str | None = None) -> DetectorPerformance:
+    pre = pre or f"detectors.{name}."
     if not isinstance(raw, dict):
         raise _err(where, pre[:-1], "expected a map")
     tau = _req(raw, "tau", float, where, pre)

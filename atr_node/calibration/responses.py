@@ -86,6 +86,10 @@ class Responses:
                 raise ValueError(f"responses of different detectors: {p.detectors} vs {dets}")
         prov = dict(parts[0].provenance)
         prov["n_images"] = sum(int(p.provenance.get("n_images", 1)) for p in parts)
+        areas = [(p.provenance.get("cell_area_m2"), max(1, int(p.provenance.get("n_cells", 1)))) for p in parts]
+        areas = [(a, w) for a, w in areas if isinstance(a, (int, float)) and a > 0]
+        if areas:  # weighted by the cells of each image
+            prov["cell_area_m2"] = sum(a * w for a, w in areas) / sum(w for _, w in areas)
         # A trait pools only when every part recorded it.
         keys = [k for k in parts[0].target_traits if all(k in p.target_traits for p in parts)]
         traits = {k: np.concatenate([np.asarray(p.target_traits[k], dtype=np.float64) for p in parts]) for k in keys}
@@ -274,8 +278,13 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
             traits["height_m"].append(float(t.height_m))
         if progress is not None:
             progress()
+    n_cells = int(np.isfinite(np.column_stack([nontarget[d] for d in dets])).any(axis=1).sum()) if dets else 0
+    # the mean area of the clean cells scored: the cell the prior P(T) is per (SPEC 6.1)
+    area = (rows // max(1, geom.length_px)) * geom.length_px * image.dx_m * cols * image.dr_m
     prov = {"n_images": 1, "images": [image.name], "image_shape": [rows, cols], "iterations": iterations,
-            "targets_per_image": targets_per_image}
+            "targets_per_image": targets_per_image,
+            "cell_area_m2": area / max(1, next(iter(nontarget.values())).size) if dets else None,
+            "n_cells": n_cells}
     return Responses(dets, {d: np.asarray(v, dtype=np.float64) for d, v in target.items()}, nontarget,
                      np.asarray(ranges, dtype=np.float64), tuple(shapes), prov,
                      {k: np.asarray(v, dtype=np.float64) for k, v in traits.items()})

@@ -1,5 +1,6 @@
 """Run the benchmarks in tools/ (a source checkout): detectors, fusion, simulation,
-calibration, links, node, batch, operators, xtf, or all of them, each printing its table.
+calibration, links, node, batch, operators, xtf, quality (the held-out contact-quality benchmark,
+issue 17), or all of them, each printing its table.
 
     atr-node bench detectors            # one benchmark, full size
     atr-node bench all --quick          # every benchmark, small sizes (a smoke run)
@@ -20,6 +21,7 @@ BENCHES = {
     "detectors": "bench_detectors.py", "fusion": "bench_fusion.py", "simulation": "bench_simulation.py",
     "calibration": "bench_calibration.py", "links": "bench_links.py", "node": "bench_node.py",
     "batch": "bench_batch.py", "operators": "bench_operators.py", "xtf": "xtf_bench.py",
+    "quality": "bench_quality.py",
 }
 
 

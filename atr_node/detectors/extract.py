@@ -56,6 +56,10 @@ class Detection:
     axis_deg: float | None = None
     """Extended object only: direction of the long axis in the tile, degrees in [-90, 90):
     0 along-track (increasing rows), +90 towards increasing range."""
+    joint: tuple[tuple[str, float], ...] | None = None
+    """Every enabled detector's response around this detection: (detector, maximum score over
+    the template window of the anchor, NaN where it covered none), for look-level evidence
+    (SPEC 6.1); None until the detect stage fills it in."""
 
 
 def find_detections(score: np.ndarray, tau: float, *, detector: str, range0_m: float, dr_m: float,

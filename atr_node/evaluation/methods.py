@@ -27,12 +27,13 @@ import numpy as np
 
 from ..calibration.model import PerformanceModel
 from ..config import Settings
-from ..fusion import ContactTracker, DetectionEvidence, DetectorObservation, EvidenceGrid, Observation
+from ..fusion import ContactTracker, EvidenceGrid, Observation
 from ..fusion.baselines import and_contacts, group_detections, or_contacts
 from ..fusion.grid import DetectionRecord
 from ..geo import MissionFrame, TileGeometry, tile_geometry
 from ..io.atrlog import LogRecord
 from ..node.detect import DetectResult
+from ..node.evidence import evidence_layers, unit_observations
 from ..node.pipeline import Pipeline
 from ..node.strip import StripUnit
 from .scoring import OperatingPoint, RocCurve, match, operating_point, roc
@@ -215,23 +216,36 @@ def _gate(settings: Settings) -> float:
 
 
 def fuse(run: EvaluationRun, detectors: Sequence[str], *, missed: bool = True,
-         bel_floor: float = EVAL_BEL_FLOOR) -> tuple[list, EvidenceGrid]:
-    """Dempster-Shafer fusion of the run's observations for a detector subset (SPEC 6-7)."""
+         bel_floor: float = EVAL_BEL_FLOOR, evidence: str | None = None,
+         prior_target: float | None = None) -> tuple[list, EvidenceGrid]:
+    """Dempster-Shafer fusion of the run's observations for a detector subset (SPEC 6-7).
+
+    ``evidence``: ``"look"`` or ``"paper"`` (default the run's ``fusion.evidence``);
+    ``prior_target``: read every confidence table under this P(T) per cell instead of the
+    model's (:meth:`PerformanceModel.with_prior`; e.g. the paper's 0.1).
+    """
     s = run.settings
-    fusion = dataclasses.replace(s.fusion, report_bel=max(bel_floor, 1e-6), withdraw_bel=max(bel_floor, 1e-6))
+    evidence = evidence or s.fusion.evidence
+    fusion = dataclasses.replace(s.fusion, report_bel=max(bel_floor, 1e-6), withdraw_bel=max(bel_floor, 1e-6),
+                                 evidence=evidence)
     gate = _gate(s)
-    grid = EvidenceGrid(fusion, gate_m=gate, detectors=tuple(detectors))
+    models: dict[int, PerformanceModel] = {}
+
+    def model_of(u: UnitRecord) -> PerformanceModel:
+        if prior_target is None:
+            return u.model
+        if id(u.model) not in models:
+            models[id(u.model)] = u.model.with_prior(prior_target)
+        return models[id(u.model)]
+
+    layers = evidence_layers(evidence, run.model, tuple(detectors))
+    grid = EvidenceGrid(fusion, gate_m=gate, detectors=tuple(detectors), layers=layers)
     tracker = ContactTracker(fusion, run.frame, gate_m=gate)
     t_last = 0.0
     for u in run.units:
-        obs = []
-        for d in detectors:
-            dets = tuple(DetectionEvidence.from_detection(x, float(u.model.confidence(d, x.gamma)))
-                         for x in u.result.detections[d])
-            pd = np.clip(np.nan_to_num(u.model.pd(d, u.ranges_m), nan=0.0), 0.0, 1.0) if missed \
-                else np.zeros(u.ranges_m.size)
-            obs.append(DetectorObservation(d, u.result.covered(d), pd, dets))
-        grid.add_observation(Observation(u.leg, u.t, u.geometry, tuple(obs)))
+        obs = unit_observations(model_of(u), u.result.detections, u.result.covered, u.ranges_m, tuple(detectors),
+                                layers, missed=missed)
+        grid.add_observation(Observation(u.leg, u.t, u.geometry, obs))
         t_last = max(t_last, u.t)
     grid.close_all()
     tracker.update(grid, t_last)

@@ -52,8 +52,8 @@ class ExchangeGrid(EvidenceGrid):
 
     def __init__(self, fusion: FusionSettings, *, gate_m: float, detectors: Iterable[str] = DETECTOR_NAMES,
                  auto_close: bool = True, node: str, context: Context,
-                 on_delta: Callable[[EvidenceDelta], None] | None = None) -> None:
-        super().__init__(fusion, gate_m=gate_m, detectors=detectors, auto_close=auto_close)
+                 on_delta: Callable[[EvidenceDelta], None] | None = None, layers: Iterable[str] | None = None) -> None:
+        super().__init__(fusion, gate_m=gate_m, detectors=detectors, auto_close=auto_close, layers=layers)
         if not node:
             raise FusionError("an exchanging grid needs a non-empty node id")
         self.node = node

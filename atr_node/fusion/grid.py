@@ -56,26 +56,30 @@ class EvidenceGrid:
     gate_m : float
         Association gate radius (see :func:`association_gate_m`).
     detectors : sequence of str
-        Detector names, in the fixed order used for sums.
+        Detector names, in the fixed order used for sums (and of the detection records).
+    layers : sequence of str, optional
+        The evidence layers, one piece per (leg, layer) and cell: the detectors (default,
+        the paper's form) or ``("look",)`` for look-level evidence (SPEC 6.1).
     auto_close : bool
         Close every other open leg when an observation of a new leg arrives.
     """
 
     def __init__(self, fusion: FusionSettings, *, gate_m: float, detectors: Iterable[str] = DETECTOR_NAMES,
-                 auto_close: bool = True) -> None:
+                 auto_close: bool = True, layers: Iterable[str] | None = None) -> None:
         self.fusion = fusion
         self.cell_m = float(fusion.cell_m)
         self.n = int(fusion.chunk_cells)
         self.nn = self.n * self.n
         self.gate_m = float(gate_m)
         self.detectors = tuple(detectors)
+        self.layers = tuple(layers) if layers is not None else self.detectors
         self.auto_close = auto_close
-        self._det_index = {d: i for i, d in enumerate(self.detectors)}
+        self._det_index = {d: i for i, d in enumerate(self.layers)}
         # L_N lives in every chunk that was covered; L_T only in chunks that received T
         # evidence (near detections): most of the seabed holds 8 bytes per cell, not 16
         self._ln = ChunkStack((self.nn,), 0.0)
         self._lt = ChunkStack((self.nn,), 0.0)
-        self._diag = ChunkStack((len(self.detectors), 2, self.nn), 0.0) if fusion.diagnostics else None
+        self._diag = ChunkStack((len(self.layers), 2, self.nn), 0.0) if fusion.diagnostics else None
         self.last_t: dict[tuple[int, int], float] = {}
         self.cover: dict[tuple[int, int], dict[int, np.ndarray | None]] = {}
         self.open: dict[int, LegLayer] = {}
@@ -115,7 +119,7 @@ class EvidenceGrid:
             for layer in self.open.values():
                 layer.chunks.reserve(chunks)
         elif getattr(self, "_spare", None) is None or self._spare.shape[0] < chunks:
-            self._spare = np.full((chunks, len(self.detectors), 2, self.nn), -1.0)
+            self._spare = np.full((chunks, len(self.layers), 2, self.nn), -1.0)
         # the accumulators keep every chunk ever covered: room for as many more
         self._ln.reserve(self._ln.high + chunks)
 
@@ -184,7 +188,7 @@ class EvidenceGrid:
                 for other in sorted(self.open):
                     self.close_leg(other)
             spare, self._spare = getattr(self, "_spare", None), None
-            self.open[leg] = LegLayer(len(self.detectors), self.nn, buffer=spare)
+            self.open[leg] = LegLayer(len(self.layers), self.nn, buffer=spare)
         layer = self.open[leg]
         layer.t = max(layer.t, t)
         return layer
@@ -193,7 +197,7 @@ class EvidenceGrid:
         try:
             return self._det_index[detector]
         except KeyError:
-            raise FusionError(f"unknown detector {detector!r}; this grid fuses {list(self.detectors)}") from None
+            raise FusionError(f"unknown detector {detector!r}; this grid's evidence layers are {list(self.layers)}") from None
 
     # ------------------------------------------------------------------ input
     def add_observation(self, obs: Observation) -> None:
@@ -224,7 +228,7 @@ class EvidenceGrid:
         if not used_cols.size:
             return
         c0, c1 = int(used_cols[0]), int(used_cols[-1]) + 1  # skip never-covered near/far range
-        stride = len(self.detectors) * 2 * self.nn
+        stride = len(self.layers) * 2 * self.nn
         pds = [d.pd for d in obs.detectors]
         block = max(1, BLOCK_PIXELS // (c1 - c0))
         for r0 in range(0, rows, block):
@@ -256,7 +260,7 @@ class EvidenceGrid:
                 e, n = obs.geometry.world(det.row, det.col)
                 iy, ix = gate_cells(float(e), float(n), gate_m=self.gate_m, cell_m=self.cell_m)
                 gates.append((k, iy, ix, det.confidence))
-                self.detections.append(DetectionRecord(obs.leg, d.detector, float(e), float(n), float(obs.t),
+                self.detections.append(DetectionRecord(obs.leg, det.source or d.detector, float(e), float(n), float(obs.t),
                                                        float(det.confidence), float(det.gamma),
                                                        **record_extent(obs.geometry, det)))
         if not gates:
@@ -279,7 +283,7 @@ class EvidenceGrid:
                 key = (cy0 + c // wc, cx0 + c % wc)
                 slot_of[c] = self._touch(layer.chunks, key, layer)
         slots = np.array([slot_of[c] for c in uniq.tolist()], dtype=np.int64)
-        stride = len(self.detectors) * 2 * self.nn
+        stride = len(self.layers) * 2 * self.nn
         cell = (iy - cy * n) * n + (ix - cx * n)
         ks = np.array([g[0] for g in gates], dtype=np.int64)[gate_of]
         conf = np.array([g[3] for g in gates], dtype=np.float64)[gate_of]
@@ -313,7 +317,7 @@ class EvidenceGrid:
         self.stamp += 1
         layer = self._layer(leg, t)
         layer.n_obs += 1
-        base = self._flat(layer.chunks, iy, ix, len(self.detectors) * 2 * self.nn, layer)
+        base = self._flat(layer.chunks, iy, ix, len(self.layers) * 2 * self.nn, layer)
         flat = layer.chunks.arr.reshape(-1)
         for which, v in enumerate(vals):
             if v is not None:
@@ -438,7 +442,7 @@ class EvidenceGrid:
         """(K, n_det, 2, nn) committed per-detector [L_T, L_N] of chunks (diagnostics on)."""
         if self._diag is None:
             raise FusionError("per-detector accumulators need fusion.diagnostics = true")
-        out = np.zeros((len(keys), len(self.detectors), 2, self.nn))
+        out = np.zeros((len(keys), len(self.layers), 2, self.nn))
         for i, key in enumerate(keys):
             s = self._diag.slot.get(key)
             if s is not None:

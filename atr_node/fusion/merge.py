@@ -34,9 +34,10 @@ def merge_into(dst: "EvidenceGrid", src: "EvidenceGrid") -> None:
         and committed in the other (its evidence could not be combined once per cell). A
         leg committed in both would count twice: callers exchange disjoint evidence.
     """
-    same = (dst.cell_m, dst.n, dst.detectors, dst.fusion.eps) == (src.cell_m, src.n, src.detectors, src.fusion.eps)
+    same = ((dst.cell_m, dst.n, dst.detectors, dst.layers, dst.fusion.eps)
+            == (src.cell_m, src.n, src.detectors, src.layers, src.fusion.eps))
     if not same:
-        raise FusionError("merge: the grids differ in cell size, chunk size, eps or detectors")
+        raise FusionError("merge: the grids differ in cell size, chunk size, eps, detectors or evidence layers")
     clash = (dst.closed_legs & set(src.open)) | (set(dst.open) & src.closed_legs)
     if clash:
         raise FusionError(f"merge: leg(s) {sorted(clash)} are open in one grid and committed in the other")
@@ -57,7 +58,7 @@ def merge_into(dst: "EvidenceGrid", src: "EvidenceGrid") -> None:
     for key, t in src.last_t.items():
         dst.last_t[key] = max(dst.last_t.get(key, -np.inf), t)
     for leg, layer in src.open.items():
-        into = dst.open.setdefault(leg, LegLayer(len(dst.detectors), dst.nn))
+        into = dst.open.setdefault(leg, LegLayer(len(dst.layers), dst.nn))
         into.t = max(into.t, layer.t)
         into.n_obs += layer.n_obs
         for key, s in layer.chunks.slot.items():

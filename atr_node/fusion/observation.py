@@ -45,6 +45,9 @@ class DetectionEvidence:
     """Its extent across the long axis."""
     axis_deg: float | None = None
     """Its long axis in the tile: 0 along-track (increasing rows), +90 towards increasing range."""
+    source: str | None = None
+    """The detector that made it, where it differs from the evidence layer it feeds (a look's
+    layer, SPEC 6.1, holds the detections of every detector); None = the layer's name."""
 
     def __post_init__(self) -> None:
         if not (0.0 <= self.confidence <= 1.0):
@@ -57,13 +60,13 @@ class DetectionEvidence:
                               f"= {extent!r}: expected all three finite, 0 <= width_m <= length_m, or none")
 
     @classmethod
-    def from_detection(cls, detection: Any, confidence: float) -> "DetectionEvidence":
+    def from_detection(cls, detection: Any, confidence: float, *, source: str | None = None) -> "DetectionEvidence":
         """From an ``atr_node.detectors.Detection`` (row, col, gamma, range_m, and an extended
         object's length_m, width_m, axis_deg when it has them) and its confidence."""
         extent = {k: float(v) for k in ("length_m", "width_m", "axis_deg")
                   if (v := getattr(detection, k, None)) is not None}
         return cls(row=int(detection.row), col=int(detection.col), gamma=float(detection.gamma),
-                   range_m=float(detection.range_m), confidence=float(confidence), **extent)
+                   range_m=float(detection.range_m), confidence=float(confidence), source=source, **extent)
 
 
 @dataclass(frozen=True, eq=False)

@@ -75,7 +75,7 @@ def grid_arrays(grid: EvidenceGrid, tracker: ContactTracker | None = None) -> di
     a["open_touched"] = np.array(touched, dtype=np.int64).reshape(-1, 4)
     a["open_retired"] = np.array(retired, dtype=np.int64).reshape(-1, 3)
     a["open_n_obs"] = np.array([layer.n_obs for layer in grid.open.values()], dtype=np.int64)
-    a["open_arr"] = (np.concatenate(oarr) if oarr else np.zeros((0, len(grid.detectors), 2, grid.nn)))
+    a["open_arr"] = (np.concatenate(oarr) if oarr else np.zeros((0, len(grid.layers), 2, grid.nn)))
     a["open_legs"] = np.array(list(grid.open), dtype=np.int64)
     a["open_t"] = np.array([layer.t for layer in grid.open.values()], dtype=np.float64)
     dets = grid.detections
@@ -88,7 +88,7 @@ def grid_arrays(grid: EvidenceGrid, tracker: ContactTracker | None = None) -> di
     a["changed_keys"] = _keys(list(grid.changed))
     a["changed_stamp"] = np.array(list(grid.changed.values()), dtype=np.int64)
     meta = {"format": FORMAT, "version": VERSION, "fusion": dataclasses.asdict(grid.fusion), "gate_m": grid.gate_m,
-            "detectors": list(grid.detectors), "auto_close": grid.auto_close,
+            "detectors": list(grid.detectors), "layers": list(grid.layers), "auto_close": grid.auto_close,
             "closed_legs": sorted(grid.closed_legs), "n_clamped": grid.n_clamped, "n_reopened": grid.n_reopened,
             "n_observations": grid.n_observations, "stamp": grid.stamp,
             "tracker": None if tracker is None else tracker.state()}
@@ -138,7 +138,8 @@ def load(path: str | os.PathLike[str]) -> tuple[EvidenceGrid, dict[str, Any] | N
                           f"expected {FORMAT!r} v{VERSION}")
     names = {f.name for f in dataclasses.fields(FusionSettings)}
     fusion = FusionSettings(**{k: v for k, v in meta["fusion"].items() if k in names})
-    grid = EvidenceGrid(fusion, gate_m=meta["gate_m"], detectors=meta["detectors"], auto_close=meta["auto_close"])
+    grid = EvidenceGrid(fusion, gate_m=meta["gate_m"], detectors=meta["detectors"], auto_close=meta["auto_close"],
+                        layers=meta.get("layers"))  # snapshots before SPEC 6.1: one layer per detector
     for name in ("ln", "lt"):
         stack = getattr(grid, f"_{name}")
         for key, v in zip(map(tuple, a[f"{name}_keys"].tolist()), a[name]):
@@ -152,7 +153,7 @@ def load(path: str | os.PathLike[str]) -> tuple[EvidenceGrid, dict[str, Any] | N
         grid.cover.setdefault((cy, cx), {})[leg] = None if b < 0 else a["cover_bits"][b].copy()
     grid.last_t = {tuple(k): float(t) for k, t in zip(a["last_keys"].tolist(), a["last_t"])}
     for leg, t, n_obs in zip(a["open_legs"].tolist(), a["open_t"], a["open_n_obs"].tolist()):
-        layer = grid.open[leg] = LegLayer(len(grid.detectors), grid.nn)
+        layer = grid.open[leg] = LegLayer(len(grid.layers), grid.nn)
         layer.t, layer.n_obs = float(t), n_obs
     for leg, cy, cx, n in a["open_touched"].tolist():
         grid.open[leg].touched[(cy, cx)] = n

@@ -105,10 +105,44 @@ def detect(job: DetectJob, workspace: Workspace | None = None) -> DetectResult:
                                 dr_m=job.dr_m, min_extent_m=ds.min_extent_m, max_extent_m=ds.max_extent_m)
 
     for d in job.enabled:
-        dets[d] = grouped(raw[d, None])
+        dets[d] = with_joint(grouped(raw[d, None]), scores, job)
         if sweep is not None:
             sweep[d] = {float(tau): grouped(raw[d, tau]) for tau in job.sweep.get(d, ())}
     return DetectResult(job.key, shape, covered, dets, time.perf_counter() - t0, sweep)
+
+
+def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: DetectJob) -> list[Detection]:
+    """``found`` with each detection's joint responses (SPEC 6.1): per enabled detector the
+    maximum of its score over the template window of the detection's anchor (rows
+    ``[i + row0, i + row0 + L)``, columns ``[j - W, j + S(j))``), the window the calibration
+    measures injected targets on (``calibration.responses.window_max``)."""
+    if not found:
+        return found
+    import dataclasses
+
+    from ..calibration.responses import window_max
+    from ..detectors.windows import window_geometry
+
+    cols = job.pixels.shape[1]
+    ranges = job.range0_m + job.dr_m * np.arange(cols, dtype=np.float64)
+    geom = window_geometry(ranges, template=job.template, dr_m=job.dr_m, dx_m=job.dx_m, altitude_m=job.altitude_m)
+    out = []
+    for x in found:
+        j = min(max(int(x.col), 0), cols - 1)
+        if x.length_m is not None:
+            # an extended object (a wreck): its anchor is the object's centre, where the
+            # detectors need not respond; each detector's response is its maximum over the
+            # object's extent (a square of its length around the centre)
+            half_r, half_c = int(np.ceil(0.5 * x.length_m / job.dx_m)), int(np.ceil(0.5 * x.length_m / job.dr_m))
+            joint = tuple((d, window_max(scores[d], int(x.row), int(x.col) + half_c, row0=-half_r,
+                                         length_px=2 * half_r + 1, echo_px=2 * half_c, shadow_px=1))
+                          for d in job.enabled)
+        else:
+            joint = tuple((d, window_max(scores[d], int(x.row), int(x.col), row0=geom.row0,
+                                         length_px=geom.length_px, echo_px=geom.echo_px,
+                                         shadow_px=int(geom.shadow_px[j]))) for d in job.enabled)
+        out.append(dataclasses.replace(x, joint=joint))
+    return out
 
 
 _WORKSPACE = Workspace()

@@ -39,7 +39,8 @@ def attach_exchange(pipeline: Any, *, node: str, on_delta: Callable[[EvidenceDel
     if pipeline.grid.n_observations or pipeline.grid.chunk_keys():
         raise AtrError("attach_exchange: the pipeline already holds evidence; attach before the first record")
     grid = ExchangeGrid(pipeline.settings.fusion, gate_m=pipeline.gate_m, detectors=pipeline.enabled, node=node,
-                        context=lambda: (pipeline.mission, pipeline.frame), on_delta=on_delta)
+                        context=lambda: (pipeline.mission, pipeline.frame), on_delta=on_delta,
+                        layers=pipeline.grid.layers)
     pipeline.grid = grid
     return grid
 

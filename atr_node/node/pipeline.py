@@ -58,7 +58,8 @@ from ..config import Settings, resolve_relative
 from ..detectors import BackgroundTracker, column_median, required_margin, window_geometry
 from ..detectors.sat import Workspace
 from ..errors import AtrError, TileError
-from ..fusion import ContactTracker, DetectionEvidence, DetectorObservation, EvidenceGrid, Observation
+from ..fusion import ContactTracker, EvidenceGrid, Observation
+from .evidence import evidence_layers, unit_observations
 from ..fusion import association_gate_m
 from ..geo import MissionFrame, tile_geometry
 from ..io.atrlog import LogRecord
@@ -188,7 +189,9 @@ class Pipeline:
         self.contact_seq_of: dict[int, int] = {}
         """Contact id -> ``seq`` of its last message (``--contacts-out`` carries it)."""
         self.gate_m = association_gate_m(settings.fusion, settings.template)
-        self.grid = EvidenceGrid(settings.fusion, gate_m=self.gate_m, detectors=self.enabled)
+        self.layers = evidence_layers(settings.fusion.evidence, model, self.enabled)
+        """The grid's evidence layers: ("look",) for look-level evidence (SPEC 6.1), else the detectors."""
+        self.grid = EvidenceGrid(settings.fusion, gate_m=self.gate_m, detectors=self.enabled, layers=self.layers)
         self._bg: dict[tuple[int, str], tuple[BackgroundTracker, BackgroundTracker]] = {}
         """Per (leg, side): trackers of the background b(j) and the median m(j)."""
         self._arrival: dict[tuple[str, int], float] = {}
@@ -643,12 +646,8 @@ class Pipeline:
         core = unit.core_tile()
         geometry = tile_geometry(core, self.frame)
         ranges = core.ranges_m
-        observations = []
-        for d in self.enabled:
-            dets = tuple(DetectionEvidence.from_detection(x, float(model.confidence(d, x.gamma)))
-                         for x in res.detections[d])
-            pd = np.clip(np.nan_to_num(model.pd(d, ranges), nan=0.0), 0.0, 1.0)
-            observations.append(DetectorObservation(d, res.covered(d), pd, dets))
+        observations = unit_observations(model, res.detections, res.covered, ranges, self.enabled,
+                                         self.grid.layers)
         t = float(unit.ping_time[unit.core][-1])
         self._last_t = max(self._last_t, t)
         t1 = time.monotonic()

@@ -133,7 +133,8 @@ def test_empty_responses_give_a_defined_model(tmp_path):
     whose confidence is the prior and whose Pd is 0 everywhere (no evidence)."""
     empty = Responses(detectors=("mf", "smf"), target={"mf": np.empty(0), "smf": np.empty(0)},
                       nontarget={"mf": np.empty(0), "smf": np.full(3, np.nan)}, target_range_m=np.empty(0))
-    m = estimate_model(empty, calibration=CalibrationSettings(prior_target=0.2), thresholds=ThresholdSettings())
+    m = estimate_model(empty, calibration=CalibrationSettings(prior="fixed", prior_target=0.2),
+                       thresholds=ThresholdSettings())
     assert m.tau == {"mf": ThresholdSettings().mf, "smf": ThresholdSettings().smf}
     for d in ("mf", "smf"):
         assert m.detectors[d].tau_source == "config"

@@ -1,0 +1,97 @@
+"""A unit's detections and coverage as evidence for the grid: per detector (the paper) or per
+look (SPEC 6.1, the default).
+
+- ``paper``: one :class:`~atr_node.fusion.DetectorObservation` per detector, its detections at
+  ``c_d(gamma)`` and its misses at ``Pd_d(r)``: four pieces per leg and cell, taken as
+  independent.
+- ``look``: one observation for the look (layer ``"look"``): every detection of every detector
+  at the look confidence ``c(z)`` of its joint responses (``Detection.joint``), and the misses
+  at the look's ``Pd(r)`` where any detector covered the cell. One piece per leg and cell: the
+  grid keeps the maximum T mass of the look there, and the detection records keep the detector
+  that made each detection.
+
+The node (``pipeline._fuse``) and the evaluation (``evaluation.methods.fuse``) both call
+:func:`unit_observations`, so what is evaluated is what the node publishes.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..fusion import DetectionEvidence, DetectorObservation
+
+log = logging.getLogger(__name__)
+
+LOOK_LAYER = "look"
+
+
+def evidence_layers(evidence: str, model: Any, enabled: Sequence[str]) -> tuple[str, ...]:
+    """The grid's evidence layers for ``fusion.evidence`` and a model: ``("look",)`` when look
+    evidence is asked for and the model has the look table of ``enabled``, else the detectors
+    (with a warning when look evidence was asked for)."""
+    if evidence == "look":
+        if model.look(enabled) is not None:
+            return (LOOK_LAYER,)
+        log.warning("fusion.evidence = 'look' but the performance model has no look-level table for %s (a model "
+                    "from before SPEC 6.1): per-detector evidence (the paper's form) is used; recalibrate with "
+                    "'atr-node calibrate' for look-level evidence", "+".join(enabled))
+    return tuple(enabled)
+
+
+def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], covered: Callable[[str], np.ndarray],
+                      ranges_m: np.ndarray, enabled: Sequence[str], layers: Sequence[str], *,
+                      missed: bool = True) -> tuple[DetectorObservation, ...]:
+    """The observations of one unit's core for a grid with evidence ``layers``.
+
+    Parameters
+    ----------
+    model : PerformanceModel
+        Thresholds' confidences and P(y), per detector and per look.
+    detections : mapping detector -> list of Detection
+        At the model's thresholds, with ``joint`` responses for look evidence.
+    covered : callable
+        ``covered(d)``: the detector's covered mask of the core (bool, rows x cols).
+    ranges_m : (cols,) float
+        Ground range of each column.
+    missed : bool
+        False: no missed-detection evidence (Pd 0), for the comparison without it.
+    """
+    ranges_m = np.asarray(ranges_m, dtype=np.float64)
+    if tuple(layers) != (LOOK_LAYER,):
+        out = []
+        for d in enabled:
+            dets = tuple(DetectionEvidence.from_detection(x, float(model.confidence(d, x.gamma))) for x in detections[d])
+            pd = _pd(model.pd(d, ranges_m)) if missed else np.zeros(ranges_m.size)
+            out.append(DetectorObservation(d, covered(d), pd, dets))
+        return tuple(out)
+    table = model.look(enabled)
+    cov = None
+    for d in enabled:
+        c = covered(d)
+        cov = c.copy() if cov is None else (cov | c)
+    dets = []
+    if table is None:
+        # a look-layered grid fed by a model without look tables (a later model of another
+        # kind): the strongest single detector stands for the look
+        for d in enabled:
+            dets += [DetectionEvidence.from_detection(x, float(model.confidence(d, x.gamma)), source=d)
+                     for x in detections[d]]
+        pd = np.max([_pd(model.pd(d, ranges_m)) for d in enabled], axis=0) if missed else np.zeros(ranges_m.size)
+    else:
+        for d in enabled:
+            for x in detections[d]:
+                joint = dict(x.joint) if x.joint is not None else {d: x.gamma}
+                z = model.look_score({k: np.float64(v) for k, v in joint.items()}, enabled)
+                c = float(np.clip(table.confidence_at(z), 0.0, 1.0))
+                dets.append(DetectionEvidence.from_detection(x, c, source=d))
+        pd = _pd(table.pd_at(ranges_m)) if missed else np.zeros(ranges_m.size)
+    if cov is None:
+        return ()
+    return (DetectorObservation(LOOK_LAYER, cov, pd, tuple(dets)),)
+
+
+def _pd(pd: np.ndarray) -> np.ndarray:
+    return np.clip(np.nan_to_num(np.asarray(pd, dtype=np.float64), nan=0.0), 0.0, 1.0)

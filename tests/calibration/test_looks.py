@@ -1,0 +1,177 @@
+"""Look-level tables (SPEC 6.1) from joint responses, checked against direct float64 counts,
+closed forms, and the single-detector tables they must reduce to."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from atr_node.calibration.estimate import estimate_model
+from atr_node.calibration.looks import area_prior, subset_key, tail_table, with_prior
+from atr_node.calibration.model import PerformanceModel
+from atr_node.calibration.responses import Responses
+from atr_node.config import CalibrationSettings, ThresholdSettings
+from atr_node.errors import ModelFileError
+
+DETS = ("mf", "lac", "smf", "z")
+
+
+def joint_responses(rng, *, m=1500, k=20000, rho=0.8) -> Responses:
+    """Four detectors whose responses share a common part (correlation ``rho``): targets shifted
+    up, fading with range; the same cells for every detector (joint)."""
+    r = rng.uniform(10.0, 60.0, size=m)
+
+    def draws(n, shift):
+        common = rng.normal(size=n)
+        return {d: shift + math.sqrt(rho) * common + math.sqrt(1 - rho) * rng.normal(size=n) for d in DETS}
+
+    target = draws(m, 3.5 - 0.03 * r)
+    nontarget = draws(k, 0.0)
+    return Responses(DETS, target, nontarget, r, ("cylinder",) * m, {"cell_area_m2": 5.0})
+
+
+def test_tail_table_is_the_jeffreys_survival_at_its_knots(rng):
+    x = rng.gamma(2.0, size=5000)
+    t = tail_table(x)
+    direct = -np.log(((x[None, :] >= t.gamma[:, None]).sum(axis=1) + 0.5) / (x.size + 1.0))
+    np.testing.assert_allclose(t.u, np.maximum.accumulate(np.maximum(direct, 0.0)), rtol=0, atol=1e-12)
+    assert np.all(np.diff(t.gamma) > 0) and np.all(np.diff(t.u) >= 0)
+    assert t(np.nan) == 0.0 and t(-1e300) == t.u[0]
+    # beyond the data: the exponential tail, slope 1 / mean excess over the top 5 % (for a
+    # gamma(2) sample the excess is close to exponential with mean near 1)
+    top = np.sort(x)[-250:]
+    assert t.slope == pytest.approx(1.0 / np.mean(top - np.sort(x)[-251]), rel=1e-12)
+    assert t(x.max() + 3.0) == pytest.approx(t.u[-1] + 3.0 * t.slope, rel=1e-12)
+    assert np.isfinite(t(np.inf)) and t(np.inf) > t(x.max() + 3.0)
+    # the upper tail is resolved: the top knot is the largest response
+    assert t.gamma[-1] == x.max()
+    assert tail_table(np.full(7, np.nan)).u.tolist() == [0.0, 0.0]  # no response: tells nothing
+
+
+def test_look_pd_is_the_share_of_targets_on_which_any_detector_fired(rng):
+    resp = joint_responses(rng)
+    cal = CalibrationSettings(prior="fixed")
+    model = estimate_model(resp, calibration=cal, thresholds=ThresholdSettings())
+    for subset in (("mf",), ("mf", "smf"), DETS):
+        table = model.look(subset)
+        fired = np.zeros(resp.n_targets, bool)
+        for d in subset:
+            fired |= resp.target[d] > model.tau[d]
+        edges = table.pyr.edges_m
+        for b in range(edges.size - 1):
+            inb = (resp.target_range_m >= edges[b]) & (resp.target_range_m < edges[b + 1])
+            n, k = int(inb.sum()), int(fired[inb].sum())
+            if n:
+                assert table.pyr.injected[b] == n and table.pyr.detected[b] == k
+                assert table.pyr.pd[b] == pytest.approx((k + 0.5) / (n + 1.0), abs=1e-12)
+        assert table.pd_at_tau == pytest.approx(fired.mean(), abs=1e-12)
+
+
+def test_one_detector_look_is_that_detectors_own_table(rng):
+    """For a single detector z is a monotone function of gamma and "fired" is gamma > tau:
+    the look confidence at z(gamma) is the detector's c(gamma)."""
+    resp = joint_responses(rng)
+    model = estimate_model(resp, calibration=CalibrationSettings(prior="fixed"), thresholds=ThresholdSettings())
+    g = np.quantile(resp.target["smf"][resp.target["smf"] > model.tau["smf"]], np.linspace(0.02, 0.98, 25))
+    z = model.look_score({"smf": g}, ("smf",))
+    np.testing.assert_allclose(model.look(("smf",)).confidence_at(z), model.confidence("smf", g), atol=0.03)
+
+
+def test_copies_of_one_detector_add_nothing(rng):
+    """Four identical detectors are one piece of evidence: the look table of the four is the
+    table of one (z is 4 u(gamma), fired sets equal), where the paper's form would count
+    the same detection four times."""
+    resp = joint_responses(rng)
+    same = Responses(DETS, {d: resp.target["mf"] for d in DETS}, {d: resp.nontarget["mf"] for d in DETS},
+                     resp.target_range_m, resp.target_shape, resp.provenance)
+    model = estimate_model(same, calibration=CalibrationSettings(prior="fixed"), thresholds=ThresholdSettings(),
+                           taus={d: 1.5 for d in DETS})
+    one, four = model.look(("mf",)), model.look(DETS)
+    g = np.linspace(1.6, 4.0, 13)
+    c1 = one.confidence_at(model.look_score({"mf": g}, ("mf",)))
+    c4 = four.confidence_at(model.look_score({d: g for d in DETS}, DETS))
+    np.testing.assert_allclose(c4, c1, atol=0.02)
+    np.testing.assert_allclose(four.pyr.pd, one.pyr.pd, atol=1e-12)
+    # the paper: four simple supports of c combine to 1 - (1 - c)^4
+    paper, mid = 1 - (1 - c1) ** 4, c1 < 0.9
+    assert mid.sum() >= 4 and np.all(paper[mid] > c4[mid] + 0.05)
+
+
+def test_correlated_detectors_give_less_than_independent_ones(rng):
+    """With correlated detectors (rho 0.8) the look's confidence at a typical target is far
+    below the paper's product of four simple supports from the same responses."""
+    resp = joint_responses(rng, rho=0.8)
+    model = estimate_model(resp, calibration=CalibrationSettings(prior="fixed"), thresholds=ThresholdSettings())
+    strong = {d: np.array([np.median(resp.target[d])]) for d in DETS}
+    c_look = float(model.look(DETS).confidence_at(model.look_score(strong, DETS))[0])
+    c_each = [float(model.confidence(d, strong[d])[0]) for d in DETS]
+    paper = 1 - np.prod([1 - c for c in c_each])
+    assert 0.0 < c_look < paper
+    # the look confidence still grows with the evidence
+    z = model.look_score({d: np.linspace(0, 5, 50) for d in DETS}, DETS)
+    assert np.all(np.diff(model.look(DETS).confidence_at(z)) >= 0)
+
+
+def test_every_subset_has_a_table_and_the_file_keeps_them(rng, tmp_path):
+    model = estimate_model(joint_responses(rng, m=400, k=4000), calibration=CalibrationSettings(),
+                           thresholds=ThresholdSettings())
+    assert len(model.looks.tables) == 15 and subset_key(("z", "mf")) == "mf+z"
+    back = PerformanceModel.load(model.save(tmp_path / "m.json"))
+    g = {d: np.linspace(-1, 5, 31) for d in DETS}
+    for key, table in model.looks.tables.items():
+        dets = key.split("+")
+        np.testing.assert_array_equal(back.look(dets).confidence_at(back.look_score(g, dets)),
+                                      table.confidence_at(model.look_score(g, dets)))
+        np.testing.assert_array_equal(back.look(dets).pyr.pd, table.pyr.pd)
+    # a corrupted look table is refused with the key named
+    body = json.loads((tmp_path / "m.json").read_text())
+    body["looks"]["tables"]["mf+lac"]["confidence"]["c"][0] = 1.5
+    from atr_node.calibration.model import _digest
+
+    body["sha256"] = _digest({k: v for k, v in body.items() if k != "sha256"})
+    (tmp_path / "bad.json").write_text(json.dumps(body))
+    with pytest.raises(ModelFileError, match=r"looks\.tables\.mf\+lac\.confidence\.c"):
+        PerformanceModel.load(tmp_path / "bad.json")
+    # a model file from before SPEC 6.1 (no looks) still loads, without look tables
+    del body["looks"]
+    body["sha256"] = _digest({k: v for k, v in body.items() if k != "sha256"})
+    (tmp_path / "old.json").write_text(json.dumps(body))
+    old = PerformanceModel.load(tmp_path / "old.json")
+    assert old.looks is None and old.look(DETS) is None
+
+
+def test_area_prior_closed_form_and_recorded():
+    assert area_prior(400.0, 5.0) == pytest.approx(1 - math.exp(-400 * 5.0 / 1e6), rel=1e-15)
+    assert area_prior(1e-300, 1e-300) == 1e-12 and area_prior(1e6, 1e9) == 1 - 1e-12
+
+
+def test_area_prior_is_used_and_written_into_the_model(rng):
+    resp = joint_responses(rng, m=300, k=3000)
+    model = estimate_model(resp, calibration=CalibrationSettings(prior="area", target_density_km2=1000.0),
+                           thresholds=ThresholdSettings())
+    est = model.estimation
+    assert est["prior"] == "area" and est["cell_area_m2"] == 5.0 and est["target_density_km2"] == 1000.0
+    assert est["prior_target"] == pytest.approx(1 - math.exp(-1000 * 5.0 / 1e6))
+    fixed = estimate_model(resp, calibration=CalibrationSettings(prior="fixed", prior_target=0.1),
+                           thresholds=ThresholdSettings())
+    assert fixed.estimation["prior"] == "fixed" and fixed.prior_target == 0.1
+
+
+def test_with_prior_matches_a_model_made_with_that_prior(rng):
+    """Re-reading the tables under another prior (odds ratio) gives the tables estimated with
+    it, wherever the isotonic fit did not move them."""
+    resp = joint_responses(rng)
+    a = estimate_model(resp, calibration=CalibrationSettings(prior="fixed", prior_target=0.1),
+                       thresholds=ThresholdSettings())
+    b = estimate_model(resp, calibration=CalibrationSettings(prior="fixed", prior_target=0.003),
+                       thresholds=ThresholdSettings())
+    moved = a.with_prior(0.003)
+    for d in DETS:
+        ca, cb = a.detectors[d].confidence, b.detectors[d].confidence
+        if not ca.isotonic_adjusted and not cb.isotonic_adjusted:
+            np.testing.assert_allclose(moved.detectors[d].confidence.confidence, cb.confidence, rtol=1e-9)
+    assert moved.prior_target == 0.003
+    np.testing.assert_allclose(with_prior(np.array([0.5]), 0.5, 0.1), [0.1], rtol=1e-15)

@@ -1,0 +1,327 @@
+"""Held-out scene generator (issue 17, item 1): files, determinism, geometry, what the tiles
+show, K speckle, and its independence from the node's own simulator.
+
+Scenes are small (2 legs of 60 m) and read back through the project's readers; the target,
+shadow and one-leg checks locate objects from the truth CSVs and the tiles' own nav only.
+"""
+
+from __future__ import annotations
+
+import ast
+import csv
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+import atr_node.evaluation.heldout as heldout
+from atr_node.evaluation.heldout import SEABEDS, generate_scene, k_intensity
+from atr_node.evaluation.scoring import read_truth
+from atr_node.geo import MissionFrame
+from atr_node.io.atrlog import read_atrlog
+from atr_node.records.tile import Tile
+
+SMALL = dict(legs=2, leg_length_m=60.0)
+BRIGHT, DARK = 4.0, 0.2
+"""A 5x5 mean over the seabed's mean: above BRIGHT is an echo, below DARK a shadow."""
+FILES = ("mission.atrlog", "truth.csv", "clutter.csv", "one_leg.csv", "scene.json")
+
+
+def _textures() -> Path:
+    d = heldout.default_textures_dir()
+    if not d.is_dir():
+        pytest.skip(f"SAS textures not found at {d} (set ATR_SAS_TEXTURES)")
+    return d
+
+
+@pytest.fixture(scope="module")
+def sand(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("sand")
+    generate_scene(out, seabed="sand", seed=7, **SMALL)
+    return out
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _tiles(out: Path) -> list[Tile]:
+    return [Tile.from_map(r.msg) for r in read_atrlog(out / "mission.atrlog") if r.link == "sonar"]
+
+
+def _locate(tile: Tile, frame: MissionFrame, lat: float, lon: float) -> tuple[float, float] | None:
+    """(row, col) of a world point in a ground-range tile, from the tile's nav alone."""
+    e, n = frame.to_frame(tile.nav.lat_deg, tile.nav.lon_deg)
+    oe, on = frame.to_frame(lat, lon)
+    h = np.radians(tile.nav.heading_deg)
+    ae, an = np.sin(h), np.cos(h)
+    se, sn = (np.cos(h), -np.sin(h)) if tile.side == "stbd" else (-np.cos(h), np.sin(h))
+    along = (oe - e) * ae + (on - n) * an
+    i = int(np.argmin(np.abs(along)))
+    if abs(along[i]) > tile.dx_m:
+        return None
+    rng_m = float((oe - e[i]) * se[i] + (on - n[i]) * sn[i])
+    return i, (rng_m - tile.range0_m) / tile.dr_m
+
+
+def _sightings(out: Path, csv_name: str, min_range_m: float = 10.0, max_range_m: float = 50.0):
+    """(object row, tile, row, col) for every tile side imaging an object at min-max range,
+    away from the tile's first and last 15 pings."""
+    scene = json.loads((out / "scene.json").read_text())
+    frame = MissionFrame.from_dict(scene["frame"])
+    tiles = _tiles(out)
+    for obj in _rows(out / csv_name):
+        for t in tiles:
+            at = _locate(t, frame, float(obj["lat_deg"]), float(obj["lon_deg"]))
+            if at is None:
+                continue
+            i, c = at
+            if 15 <= i < t.rows - 15 and min_range_m / t.dr_m <= c <= max_range_m / t.dr_m:
+                yield obj, t, int(i), int(round(c))
+
+
+def _echo_and_shadow(t: Tile, i: int, c: int, size_m: float) -> tuple[float, float]:
+    """(brightest 5x5 mean near the point, darkest 5x5 mean behind it in range), both over
+    the seabed level: the mean intensity of the same rows 4-9 m nearer the sonar."""
+    px = np.nan_to_num(t.pixels, nan=0.0).astype(np.float64)
+    half_rows = int(round((size_m / 2 + 1.0) / t.dx_m))
+    r0, r1 = max(i - half_rows, 0), min(i + half_rows + 1, t.rows)
+    seabed = float(np.nanmean(t.pixels[r0:r1, c - 90:c - 40]))
+    box = ndimage.uniform_filter(px, 5)
+    bright = box[r0:r1, c - 25:c + 25]
+    jb = int(np.unravel_index(np.argmax(bright), bright.shape)[1]) + c - 25
+    dark = box[r0:r1, jb + 1:c + int(size_m / t.dr_m) + 40]
+    return float(bright.max()) / seabed, float(dark.min()) / seabed
+
+
+# ----------------------------------------------------------------------------------------
+
+
+def test_files_written_and_readable(sand):
+    for name in FILES:
+        assert (sand / name).is_file(), name
+    scene = json.loads((sand / "scene.json").read_text())
+    assert scene["generator_version"] == heldout.GENERATOR_VERSION and scene["seed"] == 7
+    assert len(scene["per_leg"]) == 2
+    for leg in scene["per_leg"]:
+        off = math.hypot(leg["nav_offset_east_m"], leg["nav_offset_north_m"])
+        assert 0.4 <= off <= 0.6, leg
+    assert len(read_truth(sand / "truth.csv")) == 16
+    rocks = _rows(sand / "clutter.csv")
+    assert 40 <= len(rocks) <= 110 and sum(r["target_like"] == "1" for r in rocks) >= 10
+    one = _rows(sand / "one_leg.csv")
+    assert 4 <= len(one) <= 6
+    assert list(one[0])[:5] == ["lat_deg", "lon_deg", "shape", "shown_on_leg", "covered_by_legs"]
+
+    records = list(read_atrlog(sand / "mission.atrlog", strict=True))
+    times = [r.t for r in records]
+    assert times == sorted(times) and all(r.link == "sonar" for r in records)
+    tiles = [Tile.from_map(r.msg) for r in records]
+    assert len(tiles) == scene["counts"]["tiles"]
+    for side in ("port", "stbd"):
+        assert [t.seq for t in tiles if t.side == side] == list(range(len(tiles) // 2))
+    dropped = 0
+    for t in tiles:
+        assert not t.slant and t.kind == "intensity" and t.range0_m == 0.0 and t.dr_m == t.dx_m == 0.1
+        assert t.rows <= 256 and t.ranges_m[-1] == pytest.approx(60.0)
+        assert np.isnan(t.pixels[:, t.ranges_m < 5.0]).all()  # the nadir gap
+        assert np.all(np.abs(t.nav.altitude_m - 8.0) <= 0.3 + 1e-9)
+        full = np.isnan(t.pixels[:, t.ranges_m >= 5.0]).all(axis=1)
+        dropped += int(full.sum())
+        assert np.isfinite(t.pixels[~full][:, t.ranges_m >= 5.0]).all()
+    assert dropped >= 2 * 3 * 2  # a few dropped pings per leg, on both sides
+
+
+def test_same_seed_same_bytes_other_seed_other_scene(sand, tmp_path):
+    generate_scene(tmp_path / "a", seabed="sand", seed=7, **SMALL)
+    for name in FILES:
+        assert (tmp_path / "a" / name).read_bytes() == (sand / name).read_bytes(), name
+    generate_scene(tmp_path / "b", seabed="sand", seed=8, **SMALL)
+    assert (tmp_path / "b" / "truth.csv").read_bytes() != (sand / "truth.csv").read_bytes()
+
+
+def test_truth_lies_in_the_imaged_swath_and_objects_keep_apart(tmp_path):
+    out = tmp_path / "s"
+    generate_scene(out, seabed="ripples", seed=3, legs=3, leg_length_m=80.0)
+    scene = json.loads((out / "scene.json").read_text())
+    frame = MissionFrame.from_dict(scene["frame"])
+    legs = scene["per_leg"]
+
+    def leg_coords(leg, e, n):
+        h = math.radians(leg["heading_deg"])
+        de, dn = e - leg["start_east_m"], n - leg["start_north_m"]
+        return de * math.sin(h) + dn * math.cos(h), de * math.cos(h) - dn * math.sin(h)
+
+    everything = []
+    for name in ("truth.csv", "clutter.csv", "one_leg.csv"):
+        for row in _rows(out / name):
+            e, n = frame.to_frame(float(row["lat_deg"]), float(row["lon_deg"]))
+            assert float(e) == pytest.approx(float(row["east_m"]), abs=2e-3)
+            assert float(n) == pytest.approx(float(row["north_m"]), abs=2e-3)
+            seen = []
+            for leg in legs:
+                a, c = leg_coords(leg, float(e), float(n))
+                if 0 <= a <= (leg["pings"] - 1) * 0.1 and 5.0 <= abs(c) <= 60.0:
+                    seen.append(str(leg["leg"]))
+            assert row["seen_by_legs"] == ";".join(seen) and int(row["looks"]) == len(seen), row
+            everything.append((float(e), float(n), row, name))
+    targets = [x for x in everything if x[3] == "truth.csv"]
+    assert all(int(r["looks"]) >= 1 for _, _, r, _ in targets)
+    assert sum(2 <= int(r["looks"]) <= 3 for _, _, r, _ in targets) >= 10
+    seen_once_in_gap = [x for x in targets if int(x[2]["looks"]) == 1
+                        and any(abs(leg_coords(leg, x[0], x[1])[1]) < 5.0 for leg in legs)]
+    assert len(seen_once_in_gap) >= 2
+    for _, _, r, _ in (x for x in everything if x[3] == "one_leg.csv"):
+        assert r["shown_on_leg"] in r["seen_by_legs"].split(";") and r["covered_by_legs"]
+        assert r["shown_on_leg"] not in r["covered_by_legs"].split(";")
+    xy = np.array([(e, n) for e, n, _, _ in everything])
+    d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    np.fill_diagonal(d, np.inf)
+    assert d.min() >= 3.0
+
+
+def test_a_target_shows_an_echo_and_a_shadow_behind_it(sand):
+    checked = 0
+    for obj, t, i, c in _sightings(sand, "truth.csv"):
+        h, rng_m, size = float(obj["height_m"]), c * t.dr_m, float(obj["size_m"])
+        if h * rng_m / (8.3 - h) < 0.8:  # too low to cast a shadow of 0.8 m
+            continue
+        bright, dark = _echo_and_shadow(t, i, c, size)
+        assert bright > BRIGHT, (obj["shape"], t.ident, i, c, bright)
+        assert dark < DARK, (obj["shape"], t.ident, i, c, dark)
+        checked += 1
+    assert checked >= 10
+    # The same statistics on bare seabed (nothing within 8 m) do not pass: the check can fail.
+    scene = json.loads((sand / "scene.json").read_text())
+    frame = MissionFrame.from_dict(scene["frame"])
+    objs = np.array([frame.to_frame(float(r["lat_deg"]), float(r["lon_deg"]))
+                     for n in ("truth.csv", "clutter.csv", "one_leg.csv") for r in _rows(sand / n)], dtype=float)
+    bare = []
+    for t in _tiles(sand):
+        e, n = frame.to_frame(t.nav.lat_deg, t.nav.lon_deg)
+        sgn = 1.0 if t.side == "stbd" else -1.0
+        h = np.radians(t.nav.heading_deg)
+        for c in range(150, 500, 25):
+            for i in range(20, t.rows - 20, 20):
+                pe, pn = e[i] + sgn * c * t.dr_m * np.cos(h[i]), n[i] - sgn * c * t.dr_m * np.sin(h[i])
+                clear = np.hypot(objs[:, 0] - pe, objs[:, 1] - pn).min() > 8.0
+                if clear and np.isfinite(t.pixels[i - 15:i + 16, 50:]).all():
+                    bare.append(_echo_and_shadow(t, i, c, 1.0))
+    bare = np.array(bare)
+    assert len(bare) >= 50
+    assert not np.any((bare[:, 0] > BRIGHT) & (bare[:, 1] < DARK))
+    assert np.mean(bare[:, 0] > BRIGHT) < 0.05 and np.mean(bare[:, 1] < DARK) < 0.05
+
+
+def test_one_leg_object_shows_on_its_leg_only(tmp_path):
+    out = tmp_path / "s"
+    generate_scene(out, seabed="sand", seed=11, legs=3, leg_length_m=80.0)
+    shown = covered = 0
+    for obj, t, i, c in _sightings(out, "one_leg.csv", 6.0, 57.0):
+        bright, dark = _echo_and_shadow(t, i, c, float(obj["size_m"]))
+        if str(t.leg) == obj["shown_on_leg"]:
+            assert bright > BRIGHT and dark < DARK, (t.ident, bright, dark)
+            shown += 1
+        else:
+            assert str(t.leg) in obj["covered_by_legs"].split(";")
+            assert not (bright > BRIGHT and dark < DARK), (t.ident, obj, bright, dark)
+            assert bright < BRIGHT, (t.ident, obj, bright, dark)  # no echo: nothing there
+            covered += 1
+    assert shown >= 3 and covered >= 3
+
+
+def test_k_intensity_has_the_k_distribution_second_moment():
+    rng = np.random.default_rng(5)
+    for nu in (2.0, 5.0, 20.0):
+        i = k_intensity(np.full(400_000, 3.0), nu, rng)
+        assert i.mean() == pytest.approx(3.0, rel=0.02)
+        m2 = np.mean(i * i) / i.mean() ** 2
+        assert m2 == pytest.approx(2 * (1 + 1 / nu), rel=0.03), nu
+
+
+def test_a_flat_patch_of_a_scene_is_k_distributed(tmp_path):
+    out = tmp_path / "s"
+    sc = generate_scene(out, seabed="sand", seed=4, legs=2, leg_length_m=120.0)
+    assert sc.nu < 6.0  # a small nu, so K is told apart from Rayleigh (m2 = 2) by far
+    scene = json.loads((out / "scene.json").read_text())
+    frame = MissionFrame.from_dict(scene["frame"])
+    objs = [frame.to_frame(float(r["lat_deg"]), float(r["lon_deg"]))
+            for n in ("truth.csv", "clutter.csv", "one_leg.csv") for r in _rows(out / n)]
+    oe, on = np.array([o[0] for o in objs], dtype=float), np.array([o[1] for o in objs], dtype=float)
+    m2s = []
+    for t in _tiles(out):
+        cols = (t.ranges_m >= 12.0) & (t.ranges_m <= 20.0)
+        e, n = frame.to_frame(t.nav.lat_deg, t.nav.lon_deg)
+        # The patch: pings whose 12-20 m band has no object within 10 m of its middle.
+        h = np.radians(t.nav.heading_deg)
+        s = (1.0 if t.side == "stbd" else -1.0)
+        mid_e, mid_n = e + s * 16.0 * np.cos(h), n - s * 16.0 * np.sin(h)
+        clear = np.min(np.hypot(oe[None, :] - mid_e[:, None], on[None, :] - mid_n[:, None]), axis=1) > 10.0
+        p = t.pixels[clear][:, cols].astype(np.float64)
+        p = p[np.isfinite(p).all(axis=1)]
+        if p.shape[0] >= 50:
+            p = p / p.mean(axis=0)  # the mean varies with range (gain): normalise per column
+            m2s.append((np.mean(p * p), p.size))
+    assert sum(n for _, n in m2s) > 50_000
+    m2 = sum(m * n for m, n in m2s) / sum(n for _, n in m2s)
+    assert m2 == pytest.approx(2 * (1 + 1 / sc.nu), rel=0.08)
+
+
+def test_sassed_seabed_uses_the_textures_and_names_a_missing_folder(tmp_path, monkeypatch):
+    tex = _textures()
+    sc = generate_scene(tmp_path / "s", seabed="sassed", seed=1, textures_dir=tex, **SMALL)
+    scene = json.loads(sc.scene_json.read_text())
+    assert (tex / scene["seabed"]["texture"]).is_file()
+    missing = tmp_path / "no-textures"
+    with pytest.raises(FileNotFoundError, match=str(missing)):
+        generate_scene(tmp_path / "x", seabed="sassed", seed=1, textures_dir=missing, **SMALL)
+    monkeypatch.setenv(heldout.TEXTURES_ENV, str(missing))
+    with pytest.raises(FileNotFoundError, match=str(missing)):
+        generate_scene(tmp_path / "y", seabed="sassed", seed=1, **SMALL)
+
+
+def test_command_line(tmp_path):
+    py = [sys.executable, "-m", "atr_node.evaluation.heldout"]
+    r = subprocess.run(py + ["--help"], capture_output=True, text=True)
+    assert r.returncode == 0 and "--seabed" in r.stdout
+    r = subprocess.run(py + [str(tmp_path / "a"), "--seabed", "mud", "--seed", "1"], capture_output=True, text=True)
+    assert r.returncode == 2 and "mud" in r.stderr
+    r = subprocess.run(py + [str(tmp_path / "a"), "--seabed", "sand", "--seed", "1", "--legs", "1"],
+                       capture_output=True, text=True)
+    assert r.returncode == 1 and r.stderr.strip().count("\n") == 0 and "legs" in r.stderr
+    r = subprocess.run(py + [str(tmp_path / "a"), "--seabed", "sassed", "--seed", "1", "--textures",
+                             str(tmp_path / "none")], capture_output=True, text=True)
+    assert r.returncode == 1 and str(tmp_path / "none") in r.stderr and "Traceback" not in r.stderr
+    r = subprocess.run(py + [str(tmp_path / "a"), "--seabed", "sand", "--seed", "1", "--legs", "2",
+                             "--leg-length-m", "40", "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert all((tmp_path / "a" / f).is_file() for f in FILES)
+
+
+def test_independent_of_the_node_s_simulator_and_algorithms():
+    src = Path(heldout.__file__)
+    tree = ast.parse(src.read_text())
+    forbidden = ("atr_node.simulation", "atr_node.detectors", "atr_node.calibration", "atr_node.fusion")
+    package = "atr_node.evaluation"
+    imported = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imported += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = package.split(".")[: len(package.split(".")) - node.level + 1] if node.level else []
+            mod = ".".join(base + ([node.module] if node.module else []))
+            imported += [mod] + [f"{mod}.{a.name}" for a in node.names]
+        elif isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", "")) in (
+                "__import__", "import_module"):
+            imported.append("<dynamic import>")
+    assert imported, "the parser found no import at all"
+    bad = [m for m in imported if m == "<dynamic import>" or any(m == f or m.startswith(f + ".") for f in forbidden)]
+    assert not bad, bad
+    assert "atr_node.records.tile" in imported and "atr_node.io.atrlog" in imported
+    assert set(SEABEDS) == {"sand", "ripples", "sassed"}

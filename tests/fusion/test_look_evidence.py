@@ -1,0 +1,116 @@
+"""Look-level evidence in the grid (SPEC 6.1): one piece per look and cell, built by
+``node.evidence.unit_observations`` from a model estimated on joint responses."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from atr_node.calibration.estimate import estimate_model
+from atr_node.calibration.responses import Responses
+from atr_node.config import CalibrationSettings, FusionSettings, ThresholdSettings
+from atr_node.detectors.extract import Detection
+from atr_node.fusion import EvidenceGrid, Observation
+from atr_node.fusion.mass import closed_form
+from atr_node.node.evidence import evidence_layers, unit_observations
+
+from .conftest import pixel_of, track_geometry
+
+DETS = ("mf", "lac", "smf", "z")
+POINT = (35.0, 20.0)  # east, north
+
+
+@pytest.fixture(scope="module")
+def model():
+    rng = np.random.default_rng(3)
+    m, k = 1500, 20000
+    r = rng.uniform(10.0, 60.0, size=m)
+
+    def draws(n, shift):
+        common = rng.normal(size=n)
+        return {d: shift + math.sqrt(0.8) * common + math.sqrt(0.2) * rng.normal(size=n) for d in DETS}
+
+    resp = Responses(DETS, draws(m, 3.5), draws(k, 0.0), r, ("cylinder",) * m, {"cell_area_m2": 5.0})
+    return estimate_model(resp, calibration=CalibrationSettings(prior="fixed", prior_target=0.01),
+                          thresholds=ThresholdSettings())
+
+
+def look(frame, model, leg, east0, heading, *, hit: bool, layers, gamma=4.5):
+    g = track_geometry(frame, east0_m=east0, north0_m=0.0 if heading == 0.0 else 40.0, heading_deg=heading, rows=400,
+                       cols=500, leg=leg)
+    row, col = pixel_of(g, *POINT)
+    dets = {d: [] for d in DETS}
+    if hit:
+        joint = tuple((d, gamma) for d in DETS)
+        dets = {d: [Detection(d, row, col, gamma, float(g.ranges_m[col]), 0.6, 2.0, 50, joint=joint)] for d in DETS}
+    cov = np.ones((400, 500), bool)
+    obs = unit_observations(model, dets, lambda d: cov, g.ranges_m, DETS, layers)
+    return Observation(leg, 1.7e9 + leg, g, obs)
+
+
+def bel(frame, model, views, evidence):
+    layers = evidence_layers(evidence, model, DETS)
+    grid = EvidenceGrid(FusionSettings(evidence=evidence), gate_m=3.0, detectors=DETS, layers=layers)
+    for leg, east0, heading, hit in views:
+        grid.add_observation(look(frame, model, leg, east0, heading, hit=hit, layers=layers))
+    grid.close_all()
+    return float(grid.masses_at(*POINT).m_t), grid
+
+
+def test_a_look_is_one_piece_of_evidence(frame, model):
+    """Four detectors of one look give the look's confidence, not four supports."""
+    b_look, grid = bel(frame, model, [(1, 0.0, 0.0, True)], "look")
+    assert grid.layers == ("look",) and {r.detector for r in grid.detections} == set(DETS)
+    z = model.look_score({d: np.float64(4.5) for d in DETS}, DETS)
+    assert b_look == pytest.approx(float(model.look(DETS).confidence_at(z)), rel=1e-9)
+    b_paper, _ = bel(frame, model, [(1, 0.0, 0.0, True)], "paper")
+    each = [float(model.confidence(d, 4.5)) for d in DETS]
+    assert b_paper == pytest.approx(1 - np.prod([1 - c for c in each]), rel=1e-9)
+    assert b_look < b_paper
+
+
+def test_an_object_on_one_leg_that_another_look_missed_falls_below_report(frame, model):
+    """Seen by leg 1, covered and missed by leg 2 at Pd about 0.99: under look evidence it ends
+    below report_bel; the paper's four supports keep it near certainty."""
+    views = [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)]
+    b_look, _ = bel(frame, model, views, "look")
+    b_paper, _ = bel(frame, model, views, "paper")
+    pd = float(model.look(DETS).pd_at(35.0))
+    c = float(model.look(DETS).confidence_at(model.look_score({d: np.float64(4.5) for d in DETS}, DETS)))
+    assert b_look == pytest.approx(c * (1 - pd) / (1 - c * pd), rel=1e-6)  # Dempster, closed form
+    assert b_look < FusionSettings().report_bel < b_paper
+
+
+def test_two_detecting_looks_stay_above_report(frame, model):
+    b, _ = bel(frame, model, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True)], "look")
+    c = float(model.look(DETS).confidence_at(model.look_score({d: np.float64(4.5) for d in DETS}, DETS)))
+    assert b == pytest.approx(1 - (1 - c) ** 2, rel=1e-9) and b > FusionSettings().report_bel
+
+
+def test_look_extremes_confidence_one_pd_one_and_many_looks(frame, model):
+    """SPEC 8 for the new evidence: a look at confidence 1 against one at Pd 1 (both clamped,
+    counted), and 10^5 looks in the accumulators: finite, in [0, 1]."""
+    import dataclasses
+
+    table = model.look(DETS)
+    conf = dataclasses.replace(table.confidence, confidence=np.ones_like(table.confidence.confidence))
+    pyr = dataclasses.replace(table.pyr, pd=np.ones_like(table.pyr.pd))
+    extreme = dataclasses.replace(model, looks=type(model.looks)(model.looks.tails,
+                                                                 {"mf+lac+smf+z": dataclasses.replace(
+                                                                     table, confidence=conf, pyr=pyr)}))
+    b, grid = bel(frame, extreme, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)], "look")
+    assert math.isfinite(b) and 0.0 <= b <= 1.0 and grid.n_clamped >= 2
+    lt = np.full(3, 1e5 * math.log1p(-0.9))
+    ln = np.array([0.0, 1e5 * math.log1p(-0.5), -np.inf])
+    m = closed_form(lt, ln)
+    assert np.all(np.isfinite(m.m_t)) and np.all((m.m_t >= 0) & (m.m_t <= 1))
+
+
+def test_a_model_without_look_tables_falls_back_to_the_paper(frame, model, caplog):
+    import dataclasses
+
+    old = dataclasses.replace(model, looks=None)
+    assert evidence_layers("look", old, DETS) == DETS
+    assert "no look-level table" in caplog.text

@@ -1,0 +1,282 @@
+"""Held-out quality benchmark (issue 17): the node's contacts on scenes it was never tuned on.
+
+Scenes come from ``atr_node.evaluation.heldout``, a generator written independently of the
+node's own simulator (which also makes the calibration's signatures), on three seabeds (sand,
+ripples, the SASSED textures) and seeds that never chose a setting: tune on other seeds.
+Each scene is replayed once through the node's pipeline (default settings, on-line calibration
+as the node does it); every method then works on the same detections:
+
+- **DS look**: the node's default (SPEC 6.1: one piece per look, prior per area);
+- **DS paper**: per-detector evidence, detectors independent, prior 0.1 (the paper);
+- **AND-3**: AND of the three best detectors (ranked on this scene's own ROCs: favours it);
+- **OR**: any of the four; **vote**: at least 2 of the 4 detectors within the gate.
+
+Per scene: Pd max; false alarms at Pd 0.8, 0.9 and at the max; the operating point (the
+contacts the node publishes, Bel >= report_bel); the share of contacts at Bel >= 0.999; a
+reliability table (Bel bin -> share of contacts that are targets); one-leg objects above
+report_bel; targets seen on >= 2 looks above report_bel; contacts without a detection.
+
+    python tools/bench_quality.py                      # 3 seabeds x 3 seeds, ~10 min
+    python tools/bench_quality.py --quick              # 1 small scene (smoke)
+    python tools/bench_quality.py --json out.json --out /tmp/quality
+    atr-node bench quality
+
+Exit codes: 0 ok, 1 a scene failed, 2 usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+BEL_BINS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.9, 0.99, 0.999, 1.0 + 1e-12)
+SEEDS = (101, 102, 103)
+"""Held-out seeds: reported, never used to choose a setting (tuning uses other seeds)."""
+
+
+def _vote(records, gate_m: float, k: int):
+    """Contacts where at least ``k`` distinct detectors fired within the gate."""
+    from atr_node.fusion.baselines import group_detections
+
+    n, labels = group_detections(records, gate_m=gate_m)
+    out = []
+    for g in range(n):
+        idx = np.flatnonzero(labels == g)
+        if len({records[i].detector for i in idx}) >= k:
+            w = np.array([max(records[i].confidence, 1e-12) for i in idx])
+            e = float(np.sum(w * [records[i].east_m for i in idx]) / w.sum())
+            nn = float(np.sum(w * [records[i].north_m for i in idx]) / w.sum())
+            out.append((e, nn))
+    return np.array(out).reshape(-1, 2)
+
+
+def _read_points(path: Path, frame) -> tuple[np.ndarray, list[dict]]:
+    if not path.is_file():
+        return np.zeros((0, 2)), []
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        return np.zeros((0, 2)), []
+    lat = np.array([float(r["lat_deg"]) for r in rows])
+    lon = np.array([float(r["lon_deg"]) for r in rows])
+    return np.column_stack(frame.to_frame(lat, lon)), rows
+
+
+def _near(points: np.ndarray, contacts, radius_m: float = 3.0, bel: float = 0.0) -> np.ndarray:
+    """Per point, whether some contact with Bel >= ``bel`` lies within ``radius_m``."""
+    c = np.array([(x.east_m, x.north_m) for x in contacts if x.bel >= bel]).reshape(-1, 2)
+    if not len(points) or not len(c):
+        return np.zeros(len(points), dtype=bool)
+    d = np.hypot(points[:, None, 0] - c[None, :, 0], points[:, None, 1] - c[None, :, 1])
+    return d.min(axis=1) <= radius_m
+
+
+def _reliability(contacts, truth_en: np.ndarray) -> list[dict]:
+    """Per Bel bin: contacts and the share within 3 m of a target (each contact judged on its
+    own: several contacts on one target all count as on a target)."""
+    if not contacts:
+        return []
+    c = np.array([(x.east_m, x.north_m) for x in contacts])
+    bel = np.array([x.bel for x in contacts])
+    on = _near(c, [type("P", (), {"east_m": e, "north_m": n, "bel": 1.0})() for e, n in truth_en]) \
+        if len(truth_en) else np.zeros(len(c), dtype=bool)
+    rows = []
+    for lo, hi in zip(BEL_BINS[:-1], BEL_BINS[1:]):
+        k = (bel >= lo) & (bel < hi)
+        if k.any():
+            rows.append({"bel": f"[{lo:g}, {min(hi, 1.0):g}{']' if hi > 1 else ')'}", "contacts": int(k.sum()),
+                         "targets": round(float(on[k].mean()), 3)})
+    return rows
+
+
+def _curve_figures(curve) -> dict:
+    pdmax = curve.best_pd()
+    f = {"pd_max": round(pdmax, 3), "fa_at_max": curve.fa_at_pd(pdmax) if pdmax > 0 else 0.0}
+    for p in (0.8, 0.9):
+        f[f"fa_at_{p}"] = curve.fa_at_pd(p)
+    return f
+
+
+def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dict:
+    """Every method's figures on one scene (see the module docstring)."""
+    from atr_node.commands.replay import build_model
+    from atr_node.evaluation.methods import Comparison, fuse, node_like_contacts, _records
+    from atr_node.evaluation.scoring import operating_point, read_truth
+    from atr_node.io.atrlog import AtrLogReader
+
+    model, calibrator = build_model(settings, None, online, deterministic=True)
+    from atr_node.evaluation.methods import run_pipeline
+
+    t0 = time.monotonic()
+    run = run_pipeline(settings, AtrLogReader(scene_dir / "mission.atrlog"), model=model, online=calibrator)
+    truth = read_truth(scene_dir / "truth.csv")
+    comp = Comparison(run, np.array([(t.lat_deg, t.lon_deg) for t in truth]).reshape(-1, 2))
+    en = tuple(settings.detectors.enabled)
+    report = settings.fusion.report_bel
+    singles = {d: comp.single(d) for d in en}
+    best3 = comp.ranking(singles)[:3]
+    out: dict = {"scene": scene_dir.name, "targets": len(truth), "methods": {}}
+    one_leg, _ = _read_points(scene_dir / "one_leg.csv", run.frame)
+    t_en, t_rows = _read_points(scene_dir / "truth.csv", run.frame)
+    multi = np.array([int(r.get("looks") or 0) >= 2 for r in t_rows], dtype=bool)
+    for name, kw in (("DS look (default)", {"evidence": "look"}),
+                     ("DS paper (prior 0.1)", {"evidence": "paper", "prior_target": 0.1})):
+        contacts, grid = fuse(run, en, **kw)
+        curve = comp._roc(name, contacts)
+        at_node = [c for c in node_like_contacts(run, grid) if c.bel >= report]
+        op = operating_point(name, np.array([(c.east_m, c.north_m) for c in at_node]).reshape(-1, 2), comp.truth_en)
+        p = op.points[0]
+        fig = _curve_figures(curve)
+        fig.update({"op_pd": round(p.pd, 3), "op_fa": p.false_alarms,
+                    "roc_fa_at_op_pd": curve.fa_at_pd(p.pd) if p.pd > 0 else 0.0,
+                    "share_bel_999": round(float(np.mean([c.bel >= 0.999 for c in at_node])) if at_node else 0.0, 3),
+                    "reliability": _reliability(contacts, comp.truth_en),
+                    "one_leg_objects": int(len(one_leg)),
+                    "one_leg_above_report": int(_near(one_leg, at_node).sum()),
+                    "multi_look_targets": int(multi.sum()),
+                    "multi_look_above_report": int(_near(t_en[multi], at_node).sum()) if multi.any() else 0,
+                    "no_detection": int(sum(1 for c in node_like_contacts(run, grid) if c.detections == 0))})
+        out["methods"][name] = fig
+    recs = [r for d in en for r in _records(run, d, None)]
+    for name, curve in ((f"AND-3 ({'+'.join(best3)})", comp.logical("and", best3)),
+                        ("OR", comp.logical("or", en)),
+                        ("vote 2 of 4", operating_point("vote", _vote(recs, comp.gate_m, 2), comp.truth_en))):
+        p = curve.points[0]
+        out["methods"][name] = {"pd_max": round(p.pd, 3), "fa_at_max": p.false_alarms, "op_pd": round(p.pd, 3),
+                                "op_fa": p.false_alarms}
+    out["seconds"] = round(time.monotonic() - t0, 1)
+    out["checks"] = checks(out, settings)
+    return out
+
+
+def checks(scene: dict, settings) -> dict:
+    """The issue's done-means on one scene (True / False)."""
+    m = scene["methods"]
+    ds = m["DS look (default)"]
+    paper = m["DS paper (prior 0.1)"]
+    or_ = m["OR"]
+    out = {}
+    fewer = True
+    for name, v in m.items():
+        if name.startswith("DS look"):
+            continue
+        pd = v["op_pd"] if not name.startswith("DS paper") else None
+        if pd is not None and pd > 0:
+            ds_fa = _fa_at(ds, pd, scene)
+            fewer &= ds_fa < v["op_fa"] or (ds_fa == 0 and v["op_fa"] == 0)
+    for p in ("0.8", "0.9"):
+        a, b = ds.get(f"fa_at_{p}", math.inf), paper.get(f"fa_at_{p}", math.inf)
+        if math.isfinite(b):
+            fewer &= a <= b
+    out["ds_fewer_false_alarms"] = bool(fewer)
+    out["pd_max_095_where_or_does"] = bool(or_["op_pd"] < 0.95 or ds["pd_max"] >= 0.95)
+    out["op_within_2x_roc"] = bool(ds["op_fa"] <= 2 * ds["roc_fa_at_op_pd"] or ds["op_fa"] <= 2)
+    out["no_contact_without_detection"] = ds["no_detection"] == 0
+    n1 = ds["one_leg_objects"]
+    out["one_leg_below_report_95pct"] = bool(n1 == 0 or (n1 - ds["one_leg_above_report"]) / n1 >= 0.95)
+    nm = ds["multi_look_targets"]
+    out["multi_look_above_report_95pct"] = bool(nm == 0 or ds["multi_look_above_report"] / nm >= 0.95)
+    rel = [r["targets"] for r in ds["reliability"] if r["contacts"] >= 3]
+    out["reliability_rises"] = bool(all(b >= a - 0.05 for a, b in zip(rel, rel[1:])))
+    return out
+
+
+def _fa_at(fig: dict, pd: float, scene: dict) -> float:
+    """DS's fewest false alarms at Pd >= pd, from the recorded points (pd_max, 0.8, 0.9)."""
+    cands = [(fig["pd_max"], fig["fa_at_max"])]
+    for p in (0.8, 0.9):
+        if math.isfinite(fig.get(f"fa_at_{p}", math.inf)):
+            cands.append((p, fig[f"fa_at_{p}"]))
+    ok = [fa for q, fa in cands if q >= pd - 1e-12]
+    return min(ok) if ok else math.inf
+
+
+def markdown(results: list[dict]) -> str:
+    lines = ["| scene | method | Pd max | FA@0.8 | FA@0.9 | FA@max | op Pd | op FA | Bel>=0.999 | one-leg above | multi-look above | no det |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in results:
+        for name, f in r["methods"].items():
+            def g(k):
+                v = f.get(k, "")
+                return "-" if v == "" else ("inf" if isinstance(v, float) and math.isinf(v) else f"{v:g}" if isinstance(v, float) else str(v))
+            ol = f"{f['one_leg_above_report']}/{f['one_leg_objects']}" if "one_leg_objects" in f else ""
+            ml = f"{f['multi_look_above_report']}/{f['multi_look_targets']}" if "multi_look_targets" in f else ""
+            lines.append(f"| {r['scene']} | {name} | {g('pd_max')} | {g('fa_at_0.8')} | {g('fa_at_0.9')} | {g('fa_at_max')} "
+                         f"| {g('op_pd')} | {g('op_fa')} | {g('share_bel_999')} | {ol} | {ml} | {g('no_detection')} |")
+    lines.append("")
+    lines.append("| scene | " + " | ".join(results[0]["checks"]) + " |" if results else "")
+    if results:
+        lines.append("|---|" + "---|" * len(results[0]["checks"]))
+        for r in results:
+            lines.append(f"| {r['scene']} | " + " | ".join("yes" if v else "NO" for v in r["checks"].values()) + " |")
+        lines.append("")
+        lines.append("Reliability (DS look, contacts down to Bel 0.02): Bel bin -> contacts, share on a target")
+        for r in results:
+            rel = r["methods"]["DS look (default)"]["reliability"]
+            lines.append(f"- {r['scene']}: " + "; ".join(f"{x['bel']} {x['contacts']}, {x['targets']:.2f}" for x in rel))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seabeds", default="sand,ripples,sassed", help="comma-separated (sand, ripples, sassed)")
+    ap.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated held-out seeds")
+    ap.add_argument("--legs", type=int, default=5)
+    ap.add_argument("--leg-length", type=float, default=200.0, help="metres")
+    ap.add_argument("--config", default=None, help="node settings (TOML; default built-in)")
+    ap.add_argument("--online-calibration", choices=("on", "off"), default="on")
+    ap.add_argument("--out", default="/tmp/atr-quality", help="folder for the scenes and the report")
+    ap.add_argument("--json", default=None, help="write the figures as JSON here")
+    ap.add_argument("--quick", action="store_true", help="one small sand scene (a smoke run)")
+    args = ap.parse_args(argv)
+    from atr_node.config import load_settings
+    from atr_node.errors import AtrError
+    from atr_node.evaluation.heldout import SEABEDS, generate_scene
+
+    try:
+        settings = load_settings(args.config)
+    except AtrError as exc:
+        print(f"bench_quality: {exc}", file=sys.stderr)
+        return 1
+    seabeds = [s for s in args.seabeds.split(",") if s]
+    bad = [s for s in seabeds if s not in SEABEDS]
+    if bad:
+        print(f"bench_quality: unknown seabed(s) {bad}; expected some of {list(SEABEDS)}", file=sys.stderr)
+        return 2
+    seeds = [int(s) for s in args.seeds.split(",") if s]
+    legs, length = args.legs, args.leg_length
+    if args.quick:
+        seabeds, seeds, legs, length = ["sand"], [seeds[0]], 3, 80.0
+    out = Path(args.out)
+    results = []
+    for sb in seabeds:
+        for seed in seeds:
+            d = out / f"{sb}-{seed}-{legs}x{length:g}"
+            if not (d / "mission.atrlog").is_file():
+                generate_scene(d, seabed=sb, seed=seed, legs=legs, leg_length_m=length)
+            print(f"{d.name}: scoring ...", file=sys.stderr, flush=True)
+            try:
+                results.append(score_scene(d, settings, online=args.online_calibration))
+            except AtrError as exc:
+                print(f"bench_quality: {d.name}: {exc}", file=sys.stderr)
+                return 1
+            print(f"{d.name}: {results[-1]['seconds']} s", file=sys.stderr, flush=True)
+    text = markdown(results)
+    print(text)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "quality.md").write_text(text + "\n")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"command": "python tools/bench_quality.py " + " ".join(argv or sys.argv[1:]),
+                                               "scenes": results}, indent=1, default=float) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
