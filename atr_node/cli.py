@@ -20,7 +20,7 @@ import sys
 import traceback
 
 from . import __version__
-from .errors import AtrError
+from .errors import AtrError, describe
 
 EXIT_STATUS = """exit status:
   0    done
@@ -109,16 +109,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except AtrError as exc:
-        return _fail(args, str(exc))
+        return _fail(args, describe(exc))
     except KeyboardInterrupt:
         print(f"atr-node {args.command}: interrupted", file=sys.stderr)
         return 130
     except OSError as exc:  # a file or socket the command was given: name it, no traceback
         where = exc.filename if exc.filename is not None else ""
-        why = exc.strerror or str(exc)
+        why = exc.strerror or describe(exc)
         return _fail(args, f"{where}: {why}" if where else why)
     except Exception as exc:  # a bug or a case without its own message yet: still one line
-        return _fail(args, f"unexpected {type(exc).__name__}: {exc}"
+        return _fail(args, f"unexpected {type(exc).__name__}{f': {exc}' if str(exc).strip() else ' (with no message)'}"
                            + ("" if args.verbose else " (run with -v for the traceback)"))
 
 

@@ -233,7 +233,9 @@ class SimulationSettings:
         _check(self.mission_clutter_per_km2 >= 0, "simulation.mission_clutter_per_km2", "must be >= 0")
         _check(self.mission_nav_error_m >= 0, "simulation.mission_nav_error_m", "must be >= 0")
         _check(self.mission_speed_m_s > 0, "simulation.mission_speed_m_s", "must be > 0")
-        _check(-80.0 <= self.mission_origin_lat_deg <= 80.0, "simulation.mission_origin_lat_deg", "must be in [-80, 80]")
+        # the simulator's frame is a local tangent plane (valid at any latitude): polar missions
+        # are simulated too, so the node's polar frames can be tested (issue 21)
+        _check(-90.0 <= self.mission_origin_lat_deg <= 90.0, "simulation.mission_origin_lat_deg", "must be in [-90, 90]")
         _check(1 <= self.subrays <= 16, "simulation.subrays", "must be in [1, 16]")
         _check(-2.0 <= self.temperature_c <= 40.0, "simulation.temperature_c", "must be in [-2, 40]")
         _check(0.0 <= self.salinity_psu <= 45.0, "simulation.salinity_psu", "must be in [0, 45]")

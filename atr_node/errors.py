@@ -73,3 +73,11 @@ class FusionError(AtrError, ValueError):
 
 class NotBuiltError(AtrError):
     """A command or feature that is not built yet."""
+
+
+def describe(exc: BaseException) -> str:
+    """What an exception says, never an empty string: its message, or its type when it has
+    none (``str(OSError())`` and ``str(KeyError())`` are ``""``, and a warning or an error
+    line must still say what went wrong)."""
+    text = str(exc)
+    return text if text.strip() else f"{type(exc).__name__} (with no message)"

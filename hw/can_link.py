@@ -13,6 +13,7 @@ from typing import Any
 
 import can
 
+from atr_node.errors import describe
 from atr_node.io.atrlog import LogRecord
 
 from .base import Link
@@ -52,13 +53,13 @@ class CanLink(Link):
         try:
             self.bus = can.Bus(interface=interface, channel=channel, **bus_options)
         except (can.CanError, OSError, ValueError, TypeError) as exc:
-            raise LinkError(f"CAN link {interface}:{channel}: cannot open the bus: {exc}") from None
+            raise LinkError(f"CAN link {interface}:{channel}: cannot open the bus: {describe(exc)}") from None
 
     def _recv_internal(self, timeout: float) -> LogRecord | None:
         try:
             msg = self.bus.recv(timeout=timeout)
         except (can.CanError, OSError) as exc:
-            raise LinkError(f"CAN link {self.name}: receive failed: {exc}") from None
+            raise LinkError(f"CAN link {self.name}: receive failed: {describe(exc)}") from None
         if msg is None:
             return None
         if msg.is_error_frame:

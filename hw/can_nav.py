@@ -24,6 +24,7 @@ does not cover (another length, data not ``bytes``, an extended flag) go through
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 from dataclasses import dataclass
@@ -37,9 +38,12 @@ from cantools.database.conversion import (IdentityConversion, LinearConversion, 
                                           NamedSignalConversion)
 from cantools.database.namedsignalvalue import NamedSignalValue
 
+from atr_node.errors import describe
 from atr_node.records.nav import NavFix, make_fix
 
 from .errors import CanCodecError, LinkSpecError
+
+log = logging.getLogger(__name__)
 
 DEFAULT_DBC = Path(__file__).resolve().parent.parent / "config" / "atr_node.dbc"
 NAV_POSITION, NAV_ATTITUDE, NAV_ALTITUDE, TIME, MISSION_LEG = 0x100, 0x101, 0x102, 0x103, 0x104
@@ -47,6 +51,10 @@ NOT_AVAILABLE = "NotAvailable"
 
 Frame = tuple[int, bytes, bool]
 """(arbitration_id, data, is_extended)."""
+
+CAN_FD_MAX_BYTES = 64
+"""Data bytes of the longest CAN frame (CAN FD; a classic frame holds at most 8). Longer "frames"
+(a corrupt record) are no frame at all: ``too_long``, whatever their id."""
 
 
 @lru_cache(maxsize=8)
@@ -204,6 +212,11 @@ def compile_message(message: Message) -> FastMessage | None:
     return FastMessage(message, signals)
 
 
+def _frame_id(arbitration_id: Any) -> str:
+    """``0x100`` for an int id, its repr for anything else (a message must never fail)."""
+    return f"0x{arbitration_id:X}" if type(arbitration_id) is int else repr(arbitration_id)
+
+
 def _value(v: Any) -> float | None:
     """A decoded signal value, None for the ``NotAvailable`` choice."""
     if isinstance(v, (NamedSignalValue, str)):
@@ -223,7 +236,13 @@ class CanNavDecoder:
     ----------
     counts
         ``Counter`` with ``accepted``, ``unknown`` (id not in the DBC, e.g. NMEA 2000 traffic),
-        ``bad_frame`` (wrong length or undecodable) and ``invalid`` (values out of range).
+        ``too_long`` (more than :data:`CAN_FD_MAX_BYTES` data bytes), ``bad_length`` (a DBC id
+        whose data length is not the DBC's: a DLC mismatch), ``bad_frame`` (undecodable) and
+        ``out_of_range`` (a signal outside its DBC range ``[min|max]``, e.g. a heading of 360
+        or a latitude of 100 deg). The first rejection of each reason is logged, the others
+        only counted.
+    last_reject
+        What the last rejected frame was and why, or ``""``.
     """
 
     def __init__(self, dbc: str | None = None) -> None:
@@ -239,22 +258,47 @@ class CanNavDecoder:
             if (fm is not None and not m.is_extended_frame and 0 <= m.frame_id <= 0x7FF
                     and self.db.get_message_by_frame_id(m.frame_id) is m):
                 self._fast[m.frame_id] = fm
+        # frame id -> (signal, low, high) of the signals whose raw field can exceed their DBC
+        # range (a 16-bit heading of 0.01 deg reaches 655.35); half a step of slack, so that a
+        # limit the DBC rounds (359.99) still holds
+        self._limits: dict[int, tuple[tuple[str, float, float], ...]] = {}
+        for m in self.db.messages:
+            lims = []
+            for sg in m.signals:
+                if sg.minimum is None or sg.maximum is None or sg.is_float:
+                    continue
+                half = abs(float(sg.scale)) / 2.0
+                lo, hi = float(sg.minimum) - half, float(sg.maximum) + half
+                raw = (-(1 << (sg.length - 1)), (1 << (sg.length - 1)) - 1) if sg.is_signed else (0, (1 << sg.length) - 1)
+                ends = [r * float(sg.scale) + float(sg.offset) for r in raw]
+                if min(ends) < lo or max(ends) > hi:
+                    lims.append((sg.name, lo, hi))
+            self._limits[m.frame_id] = tuple(lims)
 
     def _decode(self, arbitration_id: int, data: bytes, is_extended: bool) -> tuple[Message | None, Any]:
         """(message, signals) of a frame through cantools; (None, None) when it is rejected
         (counted). ``feed`` takes a :class:`FastMessage` instead for the usual frames: an int
         id of a compiled message, bytes of its length, standard flag; same message, same values."""
+        n = len(data)
+        if n > CAN_FD_MAX_BYTES:
+            self._reject("too_long", f"frame id {_frame_id(arbitration_id)} of {n} data bytes: a CAN frame holds at most "
+                                     f"{CAN_FD_MAX_BYTES} (CAN FD; classic 8)")
+            return None, None
         try:
             msg = self.db.get_message_by_frame_id(arbitration_id)
         except KeyError:
             msg = None
         if msg is None or bool(msg.is_extended_frame) != bool(is_extended):
-            self.counts["unknown"] += 1
+            self._unknown(arbitration_id)
+            return None, None
+        if n != msg.length:  # cantools would drop excess bytes and decode the rest as a valid frame
+            self._reject("bad_length", f"{msg.name} 0x{msg.frame_id:X} with {n} data bytes, the DBC says "
+                                       f"{msg.length}")
             return None, None
         try:
             return msg, msg.decode(bytes(data), decode_choices=True, scaling=True)
         except Exception as exc:  # cantools raises several types for short or malformed data
-            self._reject("bad_frame", f"{msg.name} 0x{arbitration_id:X} data {bytes(data).hex()}: {exc}")
+            self._reject("bad_frame", f"{msg.name} 0x{msg.frame_id:X} data {bytes(data)[:16].hex()}: {describe(exc)}")
             return None, None
 
     def feed(self, arbitration_id: int, data: bytes, is_extended: bool, t_arrival: float) -> list[NavFix | LegChange]:
@@ -267,17 +311,22 @@ class CanNavDecoder:
             if msg is None:
                 return []
             fid = msg.frame_id
+        for name, lo, hi in self._limits.get(fid, ()):
+            v = sig[name]
+            if not isinstance(v, (NamedSignalValue, str)) and not lo <= v <= hi:  # a choice is "n/a"
+                return self._reject("out_of_range", f"{msg.name}: {name} {v!r} outside its DBC range "
+                                                    f"[{lo:.6g}, {hi:.6g}]")
         t = float(t_arrival) + self._offset_s
         out: list[NavFix | LegChange] = []
         if fid == NAV_POSITION:
             lat, lon = float(sig["Latitude"]), float(sig["Longitude"])
             if abs(lat) > 90.0 or abs(lon) > 180.0:
-                return self._reject("invalid", f"{msg.name}: position {lat}, {lon} out of range")
+                return self._reject("out_of_range", f"{msg.name}: position {lat}, {lon} out of range")
             out.append(make_fix(t, lat, lon, None, None, None, None, "can:ATR_NavPosition"))
         elif fid == NAV_ATTITUDE:
             hdg = float(sig["Heading"])
             if not 0.0 <= hdg < 360.0:
-                return self._reject("invalid", f"{msg.name}: heading {hdg} outside [0, 360)")
+                return self._reject("out_of_range", f"{msg.name}: heading {hdg} outside [0, 360)")
             out.append(make_fix(t, None, None, hdg, None, None, _value(sig["Speed"]), "can:ATR_NavAttitude"))
         elif fid == NAV_ALTITUDE:
             alt, depth = _value(sig["Altitude"]), _value(sig["Depth"])
@@ -285,7 +334,7 @@ class CanNavDecoder:
         elif fid == TIME:
             us = int(sig["Microseconds"])
             if us > 999_999:
-                return self._reject("invalid", f"{msg.name}: microseconds {us} > 999999")
+                return self._reject("out_of_range", f"{msg.name}: microseconds {us} > 999999")
             self._offset_s = int(sig["Seconds"]) + us * 1e-6 - float(t_arrival)
         elif fid == MISSION_LEG:
             leg = (int(sig["Leg"]), str(sig["Survey"]) == "Survey")
@@ -293,12 +342,22 @@ class CanNavDecoder:
                 self._leg = leg
                 out.append(LegChange(t=t, leg=leg[0], survey=leg[1]))
         else:
-            self.counts["unknown"] += 1
+            self._unknown(fid)
             return []
         self.counts["accepted"] += 1
         return out
 
+    def _unknown(self, arbitration_id: Any) -> None:
+        """A frame not in the DBC: counted (a shared bus carries many), the first one logged."""
+        self.counts["unknown"] += 1
+        if self.counts["unknown"] == 1:  # ordinary traffic on a shared bus: information, not a fault
+            log.info("CAN frame id %r is not in the DBC: such frames are counted as 'unknown', not logged",
+                     arbitration_id)
+
     def _reject(self, reason: str, detail: str) -> list[NavFix | LegChange]:
         self.counts[reason] += 1
         self.last_reject = detail
+        if self.counts[reason] == 1:  # one line per reason; the rest are counted
+            log.warning("CAN frame rejected (%s): %s; further %s rejections are counted, not logged",
+                        reason, detail, reason)
         return []

@@ -13,6 +13,7 @@ dropped (``stats()``), for the heartbeat and the run report.
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from atr_node.io.atrlog import LogRecord
@@ -22,6 +23,8 @@ from .can_nav import CanNavDecoder, LegChange
 from .nmea import NmeaDecoder
 
 NavEvent = NavFix | LegChange
+
+log = logging.getLogger(__name__)
 
 
 class NavDecoder:
@@ -48,6 +51,9 @@ class NavDecoder:
                 return self.nmea.feed(msg, record.t)
             if not isinstance(msg, (bytes, bytearray)):
                 self.nmea.counts["garbage"] += 1
+                if self.nmea.counts["garbage"] == 1:
+                    log.warning("NMEA record of t %r holds a %s, not bytes: rejected as garbage; further "
+                                "garbage is counted, not logged", record.t, type(msg).__name__)
                 return []
             return self.nmea.feed(bytes(msg), record.t)
         if link == "can":
@@ -63,8 +69,10 @@ class NavDecoder:
                 if not isinstance(m["data"], (bytes, bytearray)):
                     raise TypeError("CAN data is not bytes")
                 cid, data, ext = int(m["id"]), bytes(m["data"]), bool(m["ext"])
-            except (TypeError, KeyError, ValueError, OverflowError):
-                self.can.counts["bad_frame"] += 1
+            except (TypeError, KeyError, ValueError, OverflowError) as exc:
+                self.can._reject("bad_frame", f"CAN record of t {record.t!r}: {type(exc).__name__} "
+                                              f"{exc or 'with no message'} (expected a map of int id, bytes data, "
+                                              f"bool ext)")
                 return []
             return self.can.feed(cid, data, ext, record.t)
         return []

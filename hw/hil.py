@@ -31,6 +31,7 @@ import can
 import msgpack
 import zmq
 
+from atr_node.errors import describe
 from atr_node.io.atrlog import LogRecord
 
 from .base import Link
@@ -64,7 +65,7 @@ class PtyNmeaOut:
             except OSError as exc:
                 if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
                     continue
-                raise LinkError(f"pty output {self.slave_path}: write failed: {exc}") from None
+                raise LinkError(f"pty output {self.slave_path}: write failed: {describe(exc)}") from None
             view = view[n:]
         self.counts["sent"] += 1
         return True
@@ -86,7 +87,7 @@ class CanBusOut:
         try:
             self.bus = can.Bus(interface=interface, channel=channel, **bus_options)
         except (can.CanError, OSError, ValueError, TypeError) as exc:
-            raise LinkSpecError(f"CAN output {interface}:{channel}: cannot open the bus: {exc}") from None
+            raise LinkSpecError(f"CAN output {interface}:{channel}: cannot open the bus: {describe(exc)}") from None
         self.channel = channel
         self.last_error = ""
         self.write_timeout_s = float(write_timeout_s)
@@ -100,7 +101,7 @@ class CanBusOut:
             self.bus.send(msg, timeout=self.write_timeout_s)
         except (can.CanError, ValueError) as exc:
             self.counts["dropped"] += 1
-            self.last_error = f"frame 0x{m['id']:X}: {exc}"
+            self.last_error = f"frame 0x{m['id']:X}: {describe(exc)}"
             return False
         self.counts["sent"] += 1
         return True
@@ -124,7 +125,7 @@ class ZmqTileOut:
             self.sock.bind(endpoint)
         except zmq.ZMQError as exc:
             self.sock.close(linger=0)
-            raise LinkSpecError(f"sonar output: cannot bind {endpoint!r}: {exc}") from None
+            raise LinkSpecError(f"sonar output: cannot bind {endpoint!r}: {describe(exc)}") from None
         self.endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT)
         """The bound endpoint, with the real port when ``*`` was asked."""
         self.topic = topic

@@ -25,7 +25,8 @@ metres, m/s) and is what the simulation uses to write NMEA records into generate
 (:func:`split_sentence` gives the same as a plain tuple, for the decoder's per-line path); the stateful
 :class:`hw.nmea_decoder.NmeaDecoder` (re-exported here) turns sentences into ``NavFix`` and
 never raises on bad input: every line is accepted or counted under a reason (``too_long``,
-``bad_checksum``, ``garbage``, ``unsupported``, ``bad_field``, ``invalid``, ``no_date``).
+``bad_checksum``, ``garbage``, ``unsupported``, ``bad_field``, ``invalid``, ``out_of_range``,
+``no_date``); the first rejection of each reason is logged, the others only counted.
 """
 
 from __future__ import annotations
@@ -185,7 +186,10 @@ def encode_dpt(altitude_m: float, *, offset_m: float = 0.0, max_range_m: float |
 
 # --- framing check ----------------------------------------------------------------------------
 
-REJECT_REASONS = ("too_long", "bad_checksum", "garbage", "unsupported", "bad_field", "invalid", "no_date")
+REJECT_REASONS = ("too_long", "bad_checksum", "garbage", "unsupported", "bad_field", "invalid", "out_of_range",
+                  "no_date")
+"""``invalid``: the sender flags the data invalid (RMC status V, GGA quality 0, a null field);
+``out_of_range``: a value outside its range (heading not in [0, 360), ...), as on CAN."""
 
 
 @dataclass(frozen=True)

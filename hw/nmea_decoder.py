@@ -7,6 +7,7 @@ arrival time shifted by the sentence-clock offset (details in :class:`NmeaDecode
 
 from __future__ import annotations
 
+import logging
 import math
 from collections import Counter
 from datetime import datetime, timezone
@@ -16,8 +17,32 @@ from atr_node.records.nav import NavFix, make_fix
 
 from .nmea import KNOT_M_S, REJECT_REASONS, SENTENCE_TYPES, NmeaReject, split_sentence
 
+log = logging.getLogger(__name__)
+
 _HALF_DAY_S = 43_200.0
 _isfinite = math.isfinite
+
+# Ranges of the decoded quantities, as the CAN path checks the DBC's (both count a value outside
+# as ``out_of_range``): the same heading and speed ranges; physical ranges where the DBC's
+# only reflect the width of its fields
+HEADING_MAX_DEG = 360.0
+"""Headings in [0, 360): 400, -90 or 1e308 are a corrupt field, not an angle to wrap."""
+SPEED_MAX_M_S = 65.534
+"""The DBC's ATR_NavAttitude.Speed maximum (127 kn): faster is no AUV."""
+ALTITUDE_MAX_M = 12_000.0
+"""DPT depth below the transducer (the node's altitude): no sea is deeper. Not the DBC's
+655.34 m, a limit of its 16-bit field: a ship's echo sounder reports 4675 m (the real
+``nmea`` recordings)."""
+DEPTH_RANGE_M = (-1_000.0, 12_000.0)
+"""GGA depth (-height above MSL): the CAN depth is unsigned, but a GNSS antenna above the sea
+is a negative depth; below the deepest ocean or 1 km up is a corrupt field."""
+
+
+def _in_range(value: float, lo: float, hi: float, what: str, *, hi_open: bool = False) -> float:
+    """``value`` if in [lo, hi] ([lo, hi) with ``hi_open``), else an ``out_of_range`` reject."""
+    if value < lo or value > hi or (hi_open and value == hi):
+        raise NmeaReject("out_of_range", f"{what} {value!r} outside [{lo:g}, {hi:g}{')' if hi_open else ']'}")
+    return value
 
 
 def _float(fields: Sequence[str], i: int, what: str) -> float | None:
@@ -48,8 +73,10 @@ def _coord(value: str, hemi: str, deg_digits: int, hemis: tuple[str, str], limit
     except ValueError:
         raise NmeaReject("bad_field", f"position {value!r}: expected digits") from None
     v = deg + minutes / 60.0
-    if minutes >= 60.0 or v > limit:
-        raise NmeaReject("bad_field", f"position {value!r}: out of range")
+    if minutes >= 60.0:
+        raise NmeaReject("bad_field", f"position {value!r}: minutes {minutes!r} not below 60")
+    if v > limit:
+        raise NmeaReject("out_of_range", f"position {value!r}: {v!r} deg outside [-{limit:g}, {limit:g}]")
     return -v if hemi in "SW" else v
 
 
@@ -140,6 +167,11 @@ class NmeaDecoder:
         except NmeaReject as exc:
             self.counts[exc.reason] += 1
             self.last_reject = f"{line[:90]!r}: {exc}"
+            if self.counts[exc.reason] == 1:  # one line per reason; the rest are counted
+                # other sentence types (GSV, GSA, ...) are ordinary traffic, not a fault
+                log.log(logging.INFO if exc.reason == "unsupported" else logging.WARNING,
+                        "NMEA sentence rejected (%s): %s; further %s rejections are counted, not logged",
+                        exc.reason, self.last_reject, exc.reason)
             return []
         self.counts["accepted"] += 1
         self.by_type[kind] += 1
@@ -178,7 +210,8 @@ class NmeaDecoder:
         t = self._dated(_time_of_day(f[0]), ta)
         self._clock(t, ta)
         height = _float(f, 8, "GGA altitude")
-        return make_fix(t, pos[0], pos[1], None, None, None if height is None else -height, None, "nmea:GGA")
+        depth = None if height is None else _in_range(-height, *DEPTH_RANGE_M, "GGA depth (-altitude) m")
+        return make_fix(t, pos[0], pos[1], None, None, depth, None, "nmea:GGA")
 
     def _rmc(self, f: Sequence[str], ta: float) -> NavFix:
         if len(f) < 9:
@@ -194,6 +227,11 @@ class NmeaDecoder:
         if f[1] != "A" or pos is None or (len(f) > 11 and f[11] == "N"):
             raise NmeaReject("invalid", f"RMC status {f[1]!r} or null position")
         sog = _float(f, 6, "RMC speed")
+        if sog is not None:
+            _in_range(sog * KNOT_M_S, 0.0, SPEED_MAX_M_S, "RMC speed m/s")
+        cog = _float(f, 7, "RMC course")
+        if cog is not None:  # not used, but a course of 400 deg is a corrupt sentence
+            _in_range(cog, 0.0, HEADING_MAX_DEG, "RMC course deg", hi_open=True)
         return make_fix(t, pos[0], pos[1], None, None, None, None if sog is None else sog * KNOT_M_S, "nmea:RMC")
 
     def _zda(self, f: Sequence[str], ta: float) -> None:
@@ -210,7 +248,8 @@ class NmeaDecoder:
         h = _float(f, 0, "HDT heading")
         if h is None:
             raise NmeaReject("invalid", "HDT null heading")
-        return make_fix(ta + self._offset_s, None, None, h % 360.0, None, None, None, "nmea:HDT")
+        _in_range(h, 0.0, HEADING_MAX_DEG, "HDT heading deg", hi_open=True)
+        return make_fix(ta + self._offset_s, None, None, h or 0.0, None, None, None, "nmea:HDT")  # -0 -> 0
 
     def _ths(self, f: Sequence[str], ta: float) -> NavFix:
         if len(f) < 2 or f[1] not in ("A", "E", "M", "S"):
@@ -218,7 +257,8 @@ class NmeaDecoder:
         h = _float(f, 0, "THS heading")
         if h is None:
             raise NmeaReject("invalid", "THS null heading")
-        return make_fix(ta + self._offset_s, None, None, h % 360.0, None, None, None, "nmea:THS")
+        _in_range(h, 0.0, HEADING_MAX_DEG, "THS heading deg", hi_open=True)
+        return make_fix(ta + self._offset_s, None, None, h or 0.0, None, None, None, "nmea:THS")  # -0 -> 0
 
     def _vtg(self, f: Sequence[str], ta: float) -> NavFix:
         if len(f) > 8 and f[8] == "N":
@@ -230,10 +270,15 @@ class NmeaDecoder:
             sog = None if kmh is None else kmh / 3.6
         if sog is None:
             raise NmeaReject("invalid", "VTG null speed")
+        _in_range(sog, 0.0, SPEED_MAX_M_S, "VTG speed m/s")
+        cog = _float(f, 0, "VTG course")
+        if cog is not None:  # not used, but a course of 400 deg is a corrupt sentence
+            _in_range(cog, 0.0, HEADING_MAX_DEG, "VTG course deg", hi_open=True)
         return make_fix(ta + self._offset_s, None, None, None, None, None, sog, "nmea:VTG")
 
     def _dpt(self, f: Sequence[str], ta: float) -> NavFix:
         d = _float(f, 0, "DPT depth")
-        if d is None or d < 0:
-            raise NmeaReject("invalid", f"DPT depth {f[0] if f else None!r}")
+        if d is None:
+            raise NmeaReject("invalid", "DPT null depth")
+        _in_range(d, 0.0, ALTITUDE_MAX_M, "DPT depth below transducer m")
         return make_fix(ta + self._offset_s, None, None, None, d, None, None, "nmea:DPT")

@@ -16,6 +16,7 @@ import queue
 import threading
 from typing import Sequence
 
+from atr_node.errors import describe
 from atr_node.io.atrlog import AtrLogWriter, LogRecord
 
 from .base import Link
@@ -111,9 +112,9 @@ class LinkMux(Link):
                     except queue.Full:
                         continue
         except Exception as exc:  # one failing link must not stop the others (LinkError, or a driver bug)
-            log.error("link %s failed: %s", link.name, exc, exc_info=not isinstance(exc, LinkError))
+            log.error("link %s failed: %s", link.name, describe(exc), exc_info=not isinstance(exc, LinkError))
             self.counts[f"failed:{link.name}"] += 1
-            self.last_reject = str(exc)
+            self.last_reject = describe(exc)
         finally:
             while not self._stop.is_set():
                 try:

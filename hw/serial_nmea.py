@@ -19,6 +19,7 @@ from collections import deque
 
 import serial
 
+from atr_node.errors import describe
 from atr_node.io.atrlog import LogRecord
 
 from .base import Link
@@ -78,7 +79,7 @@ class SerialNmeaLink(Link):
         try:
             self.port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=0)
         except (serial.SerialException, OSError, ValueError) as exc:
-            self._failed(f"cannot open: {exc}")
+            self._failed(f"cannot open: {describe(exc)}")
             return
         if self.counts["disconnects"]:
             log.info("serial link %s: reconnected", self.url)
@@ -123,7 +124,7 @@ class SerialNmeaLink(Link):
             while data and len(data) < READ_CHUNK and (waiting := port.in_waiting):
                 data += port.read(waiting)
         except (serial.SerialException, OSError) as exc:
-            self._failed(f"read failed: {exc}")
+            self._failed(f"read failed: {describe(exc)}")
             return None
         if not data:
             return None

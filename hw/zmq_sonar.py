@@ -22,6 +22,7 @@ import msgpack
 import zmq
 
 from atr_node.errors import AtrError
+from atr_node.errors import describe
 from atr_node.io.atrlog import LogRecord
 
 from .base import Link
@@ -86,7 +87,7 @@ class ZmqTileLink(Link):
         except (zmq.ZMQError, AtrError) as exc:
             self.sock.close(linger=0)
             if isinstance(exc, AtrError):
-                raise LinkSpecError(f"sonar link {endpoint}: {exc}") from None
+                raise LinkSpecError(f"sonar link {endpoint}: {describe(exc)}") from None
             raise LinkSpecError(f"sonar link: cannot {'bind' if bind else 'connect'} {endpoint!r}: {exc}; "
                                 f"expected an endpoint like 'tcp://127.0.0.1:5550'") from None
         self.bound_endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
@@ -101,7 +102,7 @@ class ZmqTileLink(Link):
         except zmq.Again:
             return None
         except zmq.ZMQError as exc:
-            raise LinkError(f"sonar link {self.endpoint}: receive failed: {exc}") from None
+            raise LinkError(f"sonar link {self.endpoint}: receive failed: {describe(exc)}") from None
         t = time.time()
         payload = frames[-1]
         self.counts["bytes"] += len(payload)

@@ -25,7 +25,7 @@ import sys
 import threading
 import time
 
-from ..errors import AtrError
+from ..errors import AtrError, describe
 from ._follow import add_curve_arguments, add_snapshot_argument, curve_from_args, follow_endpoint, snapshot_from_args
 
 log = logging.getLogger(__name__)
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
                 try:
                     _write(args, follower.book)
                 except AtrError as exc:  # keep following: the next refresh or the final write retries
-                    log.warning("refresh failed: %s", exc)
+                    log.warning("refresh failed: %s", describe(exc))
 
         try:
             why = follower.follow(duration_s=args.duration, until_silent_s=args.until_silent or None, stop=stop,

@@ -113,9 +113,13 @@ def run(args: argparse.Namespace) -> int:
     publish = None if publish in ("", "none") else publish
     snapshot, snapshot_setting = node_snapshot_endpoint(settings, publish_arg=args.publish,
                                                         snapshot_arg=getattr(args, "snapshot", None))
+    from ..node.state import recording_identity
+
+    # a --state-dir of another recording is set aside, not resumed (its evidence is not this one's)
+    source_id = recording_identity(args.log) if args.state_dir else None
     service = NodeService(settings, model=model, mode="replay", workers=args.workers, online=online,
                           publish=publish, state_dir=args.state_dir, source_name=str(args.log),
-                          snapshot=snapshot, snapshot_setting=snapshot_setting)
+                          snapshot=snapshot, snapshot_setting=snapshot_setting, source_id=source_id)
     service.install_signal_handlers()
     t0 = time.monotonic()
     progress = None
@@ -143,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
         live = sum(1 for c in contacts if c["state"] != "withdrawn")
         print(f"atr-node replay: {summary['tiles_in']} tiles in, {summary['tiles_done']} done, "
               f"{summary['tiles_rejected']} rejected, {dropped_text(summary)}; {live} contacts ({len(contacts)} ever); "
-              f"{summary['mpx_per_s']} Mpx/s over {wall:.1f} s; {summary['model']['short']}{read_text}",
+              f"{summary['mpx_per_s']} Mpx/s over {wall:.1f} s; {summary['model']['short']}{read_text}"
+              f"{notes_text(summary)}",
               file=sys.stderr)
         return 0 if ended else 130
     finally:
@@ -171,6 +176,26 @@ def dropped_text(summary: dict) -> str:
     reasons = summary.get("drop_reasons") or {}
     detail = ", ".join(f"{k} x {v}" for k, v in sorted(reasons.items()))
     return f"{summary['tiles_dropped']} dropped" + (f" ({detail})" if detail else "")
+
+
+def notes_text(summary: dict) -> str:
+    """``; nav rejected: nmea out_of_range x 3; 12 masses clamped to 1 - eps``: what the run
+    counted and the rest of the end-of-run line does not say (``""`` when nothing)."""
+    parts = []
+    # the recording's own rejections are in the line already (_recording_counts)
+    rejections = {k: v for k, v in (summary.get("rejections") or {}).items() if not k.startswith("recording: ")}
+    if rejections:
+        parts.append("rejected: " + ", ".join(f"{k} x {v}" for k, v in sorted(rejections.items())))
+    nav = summary.get("nav") or {}
+    rejected = [f"{link} {reason} x {n}" for link in ("nmea", "can")
+                for reason, n in sorted((nav.get(link) or {}).items()) if reason != "accepted" and n]
+    if rejected:
+        parts.append("nav rejected: " + ", ".join(rejected))
+    if summary.get("clamped"):
+        parts.append(f"{summary['clamped']} masses clamped to 1 - eps")
+    if summary.get("seq_repeats"):
+        parts.append(f"{summary['seq_repeats']} tiles repeat a seq")
+    return "".join(f"; {p}" for p in parts)
 
 
 class _Progress:

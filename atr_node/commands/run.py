@@ -67,9 +67,10 @@ def run(args: argparse.Namespace) -> int:
     service.install_signal_handlers()
     try:
         # catch up: the previous recording past the snapshot (its source), without re-recording
-        meta_folder = node_state.read_current(state_dir)
-        if meta_folder is not None:
-            meta = node_state.load(state_dir, service.pipeline)
+        # the newest snapshot that reads back (a damaged one: the previous, or afresh; state.restore)
+        meta = node_state.restore(state_dir, service.pipeline)
+        if meta is not None:
+            meta_folder = node_state.read_current(state_dir)
             service.sync_contact_view()  # late joiners get the restored contacts, then the replayed ones
             prev = Path(meta.get("source", ""))
             if prev.is_file():
@@ -139,9 +140,9 @@ def startup_lines(settings, links: dict, service, *, model_path: str | None, cal
 
 def exit_line(summary: dict, *, live_contacts: int, uptime_s: float) -> str:
     """The one line ``run`` logs at exit, from :meth:`NodeService.summary`."""
-    from .replay import dropped_text
+    from .replay import dropped_text, notes_text
 
     return (f"stopped after {uptime_s:.0f} s: {summary['tiles_in']} tiles in, {summary['tiles_done']} done, "
             f"{summary['tiles_rejected']} rejected, {dropped_text(summary)}; {live_contacts} live contacts "
             f"({summary['contacts']} ever); "
-            f"{summary['snapshots']} snapshots; {summary['model']['short']}")
+            f"{summary['snapshots']} snapshots; {summary['model']['short']}{notes_text(summary)}")

@@ -111,6 +111,9 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     f_miss = cmp.fusion(best3, missed=True)
     f_all = cmp.fusion(rank, missed=True, name=f"DS ({', '.join(d.upper() for d in rank)}), "
                                               f"with {weakest.upper()} (weakest)")
+    # SPEC 6.1: the paper's per-detector form (detectors independent, prior 0.1) in every evaluation
+    f_paper = cmp.fusion(rank, missed=True, evidence="paper", prior_target=0.1,
+                         name=f"DS ({', '.join(d.upper() for d in rank)}) as in the paper: per detector, prior 0.1")
     ds_nomiss, ds_miss, ds_all = f_nomiss.curve, f_miss.curve, f_all.curve
     report_bel = settings.fusion.report_bel
 
@@ -129,7 +132,7 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     for c in (and3, and4, or4):
         p = c.points[0]
         rows.append(Row(c.name, p.pd, p.false_alarms, p.false_alarms / km2))
-    for f in (f_nomiss, f_miss, f_all):
+    for f in (f_paper, f_nomiss, f_miss, f_all):
         # the operating point from the contacts as the node extracts them; the sweep's best Pd
         # from regions down to EVAL_BEL_FLOOR (methods.Comparison.fusion says why they differ)
         p = f.at_node.at_threshold(report_bel)
@@ -143,7 +146,7 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     figs: dict[str, str] = {}
     if figures:
         truth_en = cmp.truth_en
-        figs["roc"] = plot_roc(list(singles.values()) + [ds_nomiss, ds_miss, ds_all], [and3, and4, or4],
+        figs["roc"] = plot_roc(list(singles.values()) + [ds_nomiss, ds_miss, ds_all, f_paper.curve], [and3, and4, or4],
                                out / "roc.png", covered_km2=km2, title=f"{name}: ROC (paper figure 6)",
                                fused=[node.curve]).name
         figs["mosaic"] = plot_mosaic(mosaic, out / "mosaic.png", truth_en=truth_en, contacts=run.node_contacts,

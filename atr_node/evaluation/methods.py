@@ -182,7 +182,8 @@ class Comparison:
         name = f"{kind.upper()} ({', '.join(d.upper() for d in detectors)})"
         return operating_point(name, en, self.truth_en)
 
-    def fusion(self, detectors: Sequence[str], *, missed: bool, name: str | None = None) -> "FusionResult":
+    def fusion(self, detectors: Sequence[str], *, missed: bool, name: str | None = None, evidence: str | None = None,
+               prior_target: float | None = None) -> "FusionResult":
         """Dempster-Shafer fusion of a detector subset: its ROC and its operating point.
 
         The ROC sweeps Bel(T) over contacts extracted from regions down to
@@ -193,9 +194,9 @@ class Comparison:
         ``report_bel`` (on the demo's hard mission it gave 395 false alarms at Bel >= 0.5
         where the node published 304, and Pd 0.94 against 0.88).
         """
-        contacts, grid = fuse(self.run, detectors, missed=missed)
+        contacts, grid = fuse(self.run, detectors, missed=missed, evidence=evidence, prior_target=prior_target)
         label = name or f"DS ({', '.join(d.upper() for d in detectors)}){'' if missed else ', no missed-detection evidence'}"
-        at_node = node_like_contacts(self.run, grid)
+        at_node = node_like_contacts(self.run, grid, evidence=evidence)
         return FusionResult(self._roc(label, contacts), self._roc(label, at_node), at_node, grid)
 
     def _roc(self, label: str, contacts: Sequence[Any]) -> RocCurve:
@@ -252,7 +253,7 @@ def fuse(run: EvaluationRun, detectors: Sequence[str], *, missed: bool = True,
     return list(tracker.live.values()), grid
 
 
-def node_like_contacts(run: EvaluationRun, grid: EvidenceGrid) -> list:
+def node_like_contacts(run: EvaluationRun, grid: EvidenceGrid, *, evidence: str | None = None) -> list:
     """The live contacts the node extracts from ``grid`` with its own ``fusion`` settings
     (regions down to ``withdraw_bel``, born at ``report_bel``), at the end of the run.
 
@@ -261,7 +262,8 @@ def node_like_contacts(run: EvaluationRun, grid: EvidenceGrid) -> list:
     only; the history decides ids, and keeps alive contacts between ``withdraw_bel`` and
     ``report_bel``), which ``tests/evaluation`` checks against the node's published contacts.
     """
-    tracker = ContactTracker(run.settings.fusion, run.frame, gate_m=_gate(run.settings))
+    fusion = run.settings.fusion if evidence is None else dataclasses.replace(run.settings.fusion, evidence=evidence)
+    tracker = ContactTracker(fusion, run.frame, gate_m=_gate(run.settings))
     tracker.update(grid, max((u.t for u in run.units), default=0.0))
     return list(tracker.live.values())
 

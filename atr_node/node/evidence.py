@@ -21,6 +21,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..calibration.looks import subset_key
 from ..fusion import DetectionEvidence, DetectorObservation
 
 log = logging.getLogger(__name__)
@@ -68,6 +69,10 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
             out.append(DetectorObservation(d, covered(d), pd, dets))
         return tuple(out)
     table = model.look(enabled)
+    # canonical detector order: a look's detections carry equal confidences (one z per place),
+    # so the order of the records would break ties downstream; the node and the evaluation's
+    # comparison pass (which lists detectors by rank) must give the same records
+    enabled = subset_key(enabled).split("+")
     cov = None
     for d in enabled:
         c = covered(d)

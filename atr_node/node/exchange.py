@@ -26,7 +26,7 @@ from typing import Any, Callable, Iterable
 import msgpack
 import zmq
 
-from ..errors import AtrError
+from ..errors import AtrError, describe
 from ..fusion.exchange import TOPIC, EvidenceDelta, decode_delta, encode_delta
 from ..fusion.exchange_grid import ExchangeGrid
 
@@ -136,7 +136,7 @@ class NodeExchange:
             new = grid.ingest(payload)
         except AtrError as exc:
             self.counters["rejected"] += 1
-            log.warning("evidence delta rejected: %s", exc)
+            log.warning("evidence delta rejected: %s", describe(exc))
             return False
         self.counters["ingested" if new else "duplicates"] += 1
         return new
@@ -151,7 +151,7 @@ class NodeExchange:
                 payload = self.peers.recv(timeout_s if new == 0 else 0.0)
             except AtrError as exc:
                 self.counters["rejected"] += 1
-                log.warning("%s", exc)
+                log.warning("evidence exchange: peer message rejected: %s", describe(exc))
                 continue
             if payload is None:
                 break

@@ -61,7 +61,7 @@ from ..errors import AtrError, TileError
 from ..fusion import ContactTracker, EvidenceGrid, Observation
 from .evidence import evidence_layers, unit_observations
 from ..fusion import association_gate_m
-from ..geo import MissionFrame, tile_geometry
+from ..geo import MissionFrame, OriginEstimator, tile_geometry
 from ..io.atrlog import LogRecord
 from ..records.nav import NavFix, NavTrack
 from ..records.tile import Tile
@@ -183,6 +183,9 @@ class Pipeline:
                                 first_return_band_max_m=settings.sensor.first_return_band_max_m)
         self.strips: StripAssembler | None = None
         self.frame: MissionFrame | None = None
+        self.origin = OriginEstimator()
+        """The first plausible fixes, for the frame origin (no ``mission.origin_*``): the frame
+        is fixed once it has enough, or at the first tile (:meth:`_fix_frame`)."""
         self.tracker: ContactTracker | None = None
         self.contact_seq = 0
         """(ICD v1.1) ``seq`` of the last contact message emitted: +1 per message, kept in snapshots."""
@@ -207,6 +210,8 @@ class Pipeline:
         self.on_fused: Callable[[StripUnit, PerformanceModel, DetectResult], None] | None = None
         """Evaluation: called with every unit after it is fused."""
         self.tiles_merged = 0
+        self._seq_repeat_said = False
+        """The warning that tile seq numbers repeat was logged (once a run)."""
         self._strip_leg: int | None = None
         self.degraded = False
         self.leg: int | None = None
@@ -289,8 +294,11 @@ class Pipeline:
                 tile = Tile.from_map(rec.msg)
             except TileError as exc:
                 self.stats.tiles_rejected += 1
-                self.stats.rejections[f"tile field {exc.field}"] += 1
-                log.warning("rejected %s", exc)
+                key = f"tile field {exc.field}"
+                self.stats.rejections[key] += 1
+                if self.stats.rejections[key] == 1:  # one line per reason; the rest are counted
+                    log.warning("rejected %s (further tiles rejected for field %s are counted, not logged)",
+                                exc, exc.field)
                 return
             self.stats.tiles_in += 1
             self._arrival[(tile.side, tile.seq)] = time.monotonic()
@@ -300,7 +308,8 @@ class Pipeline:
                 if isinstance(ev, NavFix):
                     self.track.add(ev)
                     if self.frame is None and ev.lat_deg is not None and ev.lon_deg is not None:
-                        self._init_frame(ev.lat_deg, ev.lon_deg)
+                        if self.origin.add(ev.lat_deg, ev.lon_deg):
+                            self._fix_frame()
                 else:  # a leg change from the vehicle's CAN bus
                     self.leg = int(ev.leg)
             ready = self.merger.poll(rec.t)
@@ -403,16 +412,21 @@ class Pipeline:
     _last_t = 0.0
     mission = ""
 
-    def _init_frame(self, lat: float, lon: float) -> None:
-        self.frame = MissionFrame.from_settings(self.settings.mission, first_fix=(lat, lon))
+    def _fix_frame(self) -> None:
+        """Fix the mission frame: at the configured origin, else at the robust origin of the
+        first fixes (one outlier first fix must not set it; issue 21)."""
+        self.frame = MissionFrame.from_settings(self.settings.mission, first_fix=self.origin.estimate())
         self.tracker = ContactTracker(self.settings.fusion, self.frame, gate_m=self.gate_m)
+        log.debug("mission frame: %s", self.frame.name)
 
     def _on_tile(self, tile: Tile) -> None:
         # bound the INS track on long missions (it grew by every fix for the whole mission;
         # found by tools/soak.py): older fixes could only serve a tile arriving that late
         self.track.forget_before(float(tile.ping_time[0]) - NAV_KEEP_S)
         if self.frame is None:
-            self._init_frame(float(tile.nav.lat_deg[0]), float(tile.nav.lon_deg[0]))
+            # the first tile needs the frame now: the fixes so far and the tile's own pings
+            self.origin.add_track(tile.nav.lat_deg, tile.nav.lon_deg)
+            self._fix_frame()
         oc = self.online
         if oc is not None and oc.deterministic and not oc.done:
             # replay: held (nav attached, not in the strips) until the worker has its images
@@ -462,8 +476,14 @@ class Pipeline:
             for unit in self.strips.flush():
                 self._submit(unit)
         self._strip_leg = tile.leg
+        repeats = self.strips.seq_repeats
         for unit in self.strips.push(tile):
             self._submit(unit)
+        if self.strips.seq_repeats > repeats and not self._seq_repeat_said:
+            self._seq_repeat_said = True  # once a run: a recorder that never sets seq repeats it on every tile
+            log.warning("%s: seq %d does not increase on the previous tile of its leg and side (ICD section 1: "
+                        "+1 per tile and side); tiles are counted by arrival, not by seq (further repeats are "
+                        "counted in the summary's seq_repeats, not logged)", tile.ident, tile.seq)
 
     def _unit_pixels(self, shape: tuple[int, int]) -> np.ndarray:
         """Memory for a unit's pixels: a shared-memory slot when units go to the worker in

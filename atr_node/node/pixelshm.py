@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import describe
 from .detect import DetectJob, DetectResult, detect
 
 log = logging.getLogger(__name__)
@@ -231,7 +232,7 @@ class SlotChannel:
             try:
                 ref = self.slots.put(job.pixels)
             except OSError as exc:  # shared memory exhausted: this unit goes through the pipe
-                log.warning("unit pixels through the pipe: %s", exc)
+                log.warning("unit pixels through the pipe: %s", describe(exc))
         if ref is None:
             return self.pool.submit(detect, job)
         fut = self.pool.submit(detect_in_slot, dataclasses.replace(job, pixels=_NO_PIXELS), ref)
@@ -246,7 +247,7 @@ class SlotChannel:
             try:
                 return self.slots.alloc(shape, dtype)
             except OSError as exc:  # shared memory exhausted: ordinary memory, the pipe
-                log.warning("unit pixels through the pipe: %s", exc)
+                log.warning("unit pixels through the pipe: %s", describe(exc))
         return np.empty(shape, dtype)
 
     def discard(self, pixels: np.ndarray) -> None:

@@ -25,7 +25,7 @@ from typing import Any, Callable, Iterable
 
 from ..calibration.model import PerformanceModel
 from ..config import Settings
-from ..errors import AtrError
+from ..errors import AtrError, describe
 from ..io.atomic import atomic_open
 from ..io.atrlog import LogRecord
 from . import state as node_state
@@ -56,12 +56,17 @@ class NodeService:
         (:mod:`~atr_node.node.snapshot_endpoint`), or None for none; only with ``publish``.
     snapshot_setting
         The option or key that set ``snapshot``, named if it cannot be bound.
+    source_name, source_id
+        The recording replayed: its path (for messages) and its identity
+        (:func:`~atr_node.node.state.recording_identity`), kept in snapshots: a state
+        directory of another recording is set aside, not resumed.
     """
 
     def __init__(self, settings: Settings, *, model: PerformanceModel, mode: str = "replay", workers: int = 1,
                  online: Any = None, publish: str | None = None, state_dir: str | Path | None = None,
                  on_contact: Callable[[dict], None] | None = None, source_name: str = "",
-                 snapshot: str | None = None, snapshot_setting: str = "links.snapshot_endpoint") -> None:
+                 snapshot: str | None = None, snapshot_setting: str = "links.snapshot_endpoint",
+                 source_id: dict[str, Any] | None = None) -> None:
         self.settings = settings
         from ..security import curve_from_settings
 
@@ -90,6 +95,7 @@ class NodeService:
                                          publish=settings.node.exchange_publish, peers=settings.node.exchange_peers)
         self.state_dir = Path(state_dir) if state_dir else None
         self.source_name = source_name
+        self.source_id = source_id
         self.notifier = Notifier()
         self.position = 0
         self.resumed_from: int | None = None
@@ -105,12 +111,10 @@ class NodeService:
         """Restore the newest snapshot in ``state_dir`` if any; return the input position to resume at."""
         if self.state_dir is None:
             return 0
-        meta = node_state.load(self.state_dir, self.pipeline)
+        # a damaged snapshot falls back to the previous one, and another recording's state is
+        # set aside, before anything reaches the pipeline (state.restore)
+        meta = node_state.restore(self.state_dir, self.pipeline, source=self.source_name, source_id=self.source_id)
         if meta is None:
-            return 0
-        if self.source_name and meta.get("source") and meta["source"] != self.source_name:
-            log.warning("snapshot in %s is of %s, not %s: starting afresh", self.state_dir, meta["source"],
-                        self.source_name)
             return 0
         self.position = self.resumed_from = int(meta["position"])
         self.sync_contact_view()
@@ -225,20 +229,21 @@ class NodeService:
     def snapshot(self) -> None:
         self.pipeline.drain()
         try:
-            node_state.save(self.state_dir, self.pipeline, position=self.position, source=self.source_name)
+            node_state.save(self.state_dir, self.pipeline, position=self.position, source=self.source_name,
+                            source_id=self.source_id)
         except OSError as exc:
             # disk full or I/O error: the previous snapshot stays current (state.save guarantees
             # it); the node goes on and tries again after the next snapshot_every_tiles tiles
             self.snapshot_failures += 1
             self._last_snap_tiles = self.pipeline.stats.tiles_in
-            log.error("snapshot to %s failed (%s); the previous one stays current", self.state_dir, exc)
+            log.error("snapshot to %s failed (%s); the previous one stays current", self.state_dir, describe(exc))
             return
         if self.exchange is not None:  # beside the snapshot it belongs to (none: exchange off on resume)
             try:
                 self.exchange.save(node_state.read_current(self.state_dir))
             except OSError as exc:
                 log.error("evidence-exchange ledger not saved (%s): a resume from this snapshot turns "
-                          "the exchange off", exc)
+                          "the exchange off", describe(exc))
         self._last_snap_tiles = self.pipeline.stats.tiles_in
         self.snapshots += 1
 
@@ -285,7 +290,7 @@ class NodeService:
                 try:
                     self._send_heartbeat()
                 except Exception as exc:  # a heartbeat must never take the node down
-                    log.warning("heartbeat failed: %s", exc)
+                    log.warning("heartbeat failed: %s", describe(exc))
 
         self._hb_thread = threading.Thread(target=loop, name="atr-heartbeat", daemon=True)
         self._hb_thread.start()
@@ -303,6 +308,11 @@ class NodeService:
                 "snapshots": self.snapshots, "snapshot_failures": self.snapshot_failures,
                 "resumed_from": self.resumed_from, "model": self.pipeline.model_report(),
                 "contact_seq": self.pipeline.contact_seq,
+                # DS masses clamped to 1 - eps (SPEC section 6): evidence the grid had to cap
+                "clamped": int(self.pipeline.grid.n_clamped),
+                "seq_repeats": 0 if self.pipeline.strips is None else self.pipeline.strips.seq_repeats,
+                "frame": None if self.pipeline.frame is None else {**self.pipeline.frame.to_dict(),
+                                                                   "name": self.pipeline.frame.name},
                 "snapshot_endpoint": None if self.snapshot_server is None else {
                     "endpoint": self.snapshot_server.endpoint, "served": self.snapshot_server.served,
                     "refused": self.snapshot_server.refused},

@@ -11,8 +11,19 @@ A snapshot is a folder ``snap-<n>`` in the node's state directory holding
 
 and the file ``CURRENT`` names the newest complete snapshot. A new snapshot is written to a
 fresh folder, flushed and fsync'ed, and only then does ``CURRENT`` change, by an atomic
-rename; older folders are removed after. A crash at any point leaves ``CURRENT`` naming a
-complete snapshot (or no file at all before the first one).
+rename; older folders are removed after, but for the one ``CURRENT`` named before (the
+previous snapshot). A crash at any point leaves ``CURRENT`` naming a complete snapshot (or no
+file at all before the first one).
+
+Resuming (:func:`restore`) is robust to what a crash, a bad disk or an operator can leave:
+
+- a snapshot that does not read back (truncated, garbled: a bad zip, a bad CRC, bad JSON,
+  an unreadable ``CURRENT``) is reported in one warning and the previous snapshot is tried,
+  then the node starts afresh; never a traceback;
+- a snapshot of another recording (``source_id``, :func:`recording_identity`: its size and a
+  digest of its first MiB) is not resumed: the whole state is moved to ``previous/`` in the
+  state directory (replacing an older one), one warning names both recordings, and the node
+  starts afresh, truly, with nothing of the old mission's evidence.
 
 Snapshots are taken only when nothing is in flight (no held tile, no unit in the worker), so
 the state is consistent; on restart the input is resumed at ``position`` (a replay skips that
@@ -24,10 +35,13 @@ from __future__ import annotations
 
 from collections import Counter
 
+import hashlib
 import json
+import logging
 import os
 import re
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,8 +54,15 @@ from ..fusion import snapshot as grid_snapshot
 from ..geo import MissionFrame
 from .strip import StripAssembler
 
+log = logging.getLogger(__name__)
+
 FORMAT = "atr-node node state"
 VERSION = 1
+PREVIOUS = "previous"
+"""Where :func:`restore` moves a state directory's contents it does not resume."""
+IDENTITY_HEAD_BYTES = 1 << 20
+"""A recording's identity digests this much of its head (cheap for any size of file)."""
+_SNAP = re.compile(r"snap-([0-9]{1,18})")
 
 
 def _fsync_dir(path: Path) -> None:
@@ -52,14 +73,35 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def save(state_dir: str | os.PathLike[str], pipeline: Any, *, position: int, source: str = "") -> Path:
-    """Write a snapshot of ``pipeline`` (which must be quiescent) and make it current."""
+def recording_identity(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """What tells one recording from another whatever its path: its size in bytes and the
+    SHA-256 of its first :data:`IDENTITY_HEAD_BYTES` bytes (a recording starts with its
+    mission's first records: two missions never share them)."""
+    p = Path(path)
+    with open(p, "rb") as fh:
+        head = fh.read(IDENTITY_HEAD_BYTES)
+    return {"size": p.stat().st_size, "head_sha256": hashlib.sha256(head).hexdigest()}
+
+
+def _snap_number(folder: Path) -> int:
+    m = _SNAP.fullmatch(folder.name)
+    return int(m.group(1)) if m else -1
+
+
+def save(state_dir: str | os.PathLike[str], pipeline: Any, *, position: int, source: str = "",
+         source_id: dict[str, Any] | None = None) -> Path:
+    """Write a snapshot of ``pipeline`` (which must be quiescent) and make it current.
+
+    ``source``: the recording's path (for messages); ``source_id``: its identity
+    (:func:`recording_identity`), which :func:`restore` checks."""
     if pipeline.inflight:
         raise AtrError("snapshot: the pipeline still has units in the worker; drain it first")
     root = Path(state_dir)
     root.mkdir(parents=True, exist_ok=True)
     current = read_current(root)
-    n = (int(current.name.split("-")[1]) + 1) if current is not None else 1
+    # after every folder there, not after CURRENT's: the previous snapshot is kept, and a
+    # garbled CURRENT must not make this one overwrite it
+    n = max([_snap_number(f) for f in root.glob("snap-*")] + [0]) + 1
     folder = root / f"snap-{n}"
     if folder.exists():
         shutil.rmtree(folder)
@@ -68,17 +110,14 @@ def save(state_dir: str | os.PathLike[str], pipeline: Any, *, position: int, sou
         folder.mkdir()
         grid_snapshot.save(folder / "grid.npz", pipeline.grid, pipeline.tracker)
         arrays, meta = _node_arrays(pipeline)
-        meta.update(format=FORMAT, version=VERSION, position=int(position), source=source)
+        meta.update(format=FORMAT, version=VERSION, position=int(position), source=source, source_id=source_id)
         arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)
         with open(folder / "node.npz", "wb") as fh:
             np.savez(fh, **arrays)
             fh.flush()
             os.fsync(fh.fileno())
         _fsync_dir(folder)
-        tmp.write_text(folder.name + "\n")
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, root / "CURRENT")
+        _write_current(root, folder)
     except OSError:
         # disk full or I/O error: CURRENT still names the previous complete snapshot; free
         # the space the partial one took so the next attempt (or the recording) can succeed
@@ -87,37 +126,152 @@ def save(state_dir: str | os.PathLike[str], pipeline: Any, *, position: int, sou
         raise
     _fsync_dir(root)
     for old in root.glob("snap-*"):
-        if old != folder:
+        if old not in (folder, current):  # the previous one stays: restore() falls back to it
             shutil.rmtree(old, ignore_errors=True)
     return folder
 
 
+def _write_current(root: Path, folder: Path) -> None:
+    """Make ``folder`` current: ``CURRENT`` replaced by an atomic rename of a synced file."""
+    tmp = root / f".CURRENT.tmp-{os.getpid()}"
+    tmp.write_text(folder.name + "\n")
+    with open(tmp, "rb+") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, root / "CURRENT")
+
+
 def read_current(state_dir: str | os.PathLike[str]) -> Path | None:
+    """The folder ``CURRENT`` names, or None (no ``CURRENT``, an unreadable one, or one that
+    names no snapshot folder of this directory)."""
     root = Path(state_dir)
     try:
-        name = (root / "CURRENT").read_text().strip()
-    except FileNotFoundError:
+        name = (root / "CURRENT").read_text(encoding="ascii").strip()
+    except (OSError, UnicodeDecodeError):  # missing, or garbled by a bad disk
         return None
     folder = root / name
     # only a name this module writes: "snap-<n>", never a path that leads out of state_dir
     return folder if re.fullmatch(r"snap-[0-9]{1,18}", name) and folder.is_dir() else None
 
 
+@dataclass
+class Snapshot:
+    """A snapshot read back whole (every file decoded), not yet applied to a pipeline."""
+
+    folder: Path
+    meta: dict[str, Any]
+    arrays: dict[str, np.ndarray]
+    grid: Any
+    tracker_state: Any
+
+
+def read_snapshot(folder: Path) -> Snapshot:
+    """Read and decode every file of a snapshot folder; :class:`AtrError` (one line naming the
+    file) if any does not read back, so nothing of a damaged snapshot reaches a pipeline."""
+    where = folder / "node.npz"
+    try:
+        with np.load(where, allow_pickle=False) as z:
+            a = {k: z[k] for k in z.files}
+        meta = json.loads(a.pop("meta").tobytes().decode())
+        if not isinstance(meta, dict):
+            raise ValueError("meta is not a JSON object")
+        if meta.get("format") != FORMAT or meta.get("version") != VERSION:
+            raise AtrError(f"node snapshot {folder}: format {meta.get('format')!r} v{meta.get('version')!r}, "
+                           f"expected {FORMAT!r} v{VERSION}")
+        where = folder / "grid.npz"
+        grid, tracker_state = grid_snapshot.load(where)
+    except AtrError:
+        raise
+    except Exception as exc:  # a damaged zip raises BadZipFile, zlib.error, EOFError, ValueError...
+        raise AtrError(f"node snapshot {where}: unreadable ({type(exc).__name__}: {exc})") from None
+    return Snapshot(folder, meta, a, grid, tracker_state)
+
+
 def load(state_dir: str | os.PathLike[str], pipeline: Any) -> dict[str, Any] | None:
-    """Restore ``pipeline`` from the current snapshot; return its meta (None: no snapshot)."""
+    """Restore ``pipeline`` from the current snapshot; return its meta (None: no snapshot).
+    Strict: :class:`AtrError` if it does not read back (:func:`restore` falls back instead)."""
     folder = read_current(state_dir)
     if folder is None:
         return None
-    try:
-        with np.load(folder / "node.npz", allow_pickle=False) as z:
-            a = {k: z[k] for k in z.files}
-        meta = json.loads(a.pop("meta").tobytes().decode())
-    except (OSError, ValueError, KeyError) as exc:
-        raise AtrError(f"node snapshot {folder}: unreadable ({type(exc).__name__}: {exc})") from None
-    if meta.get("format") != FORMAT or meta.get("version") != VERSION:
-        raise AtrError(f"node snapshot {folder}: format {meta.get('format')!r} v{meta.get('version')!r}, "
-                       f"expected {FORMAT!r} v{VERSION}")
-    grid, tracker_state = grid_snapshot.load(folder / "grid.npz")
+    return apply(read_snapshot(folder), pipeline)
+
+
+def snapshot_folders(state_dir: str | os.PathLike[str]) -> list[Path]:
+    """The snapshot folders to try, best first: the one ``CURRENT`` names, then the others,
+    newest first (the previous snapshot; a newer complete one if a crash hit before its
+    ``CURRENT``; partial ones fail to read and are passed over)."""
+    root = Path(state_dir)
+    current = read_current(root)
+    others = sorted((f for f in root.glob("snap-*") if f.is_dir() and _SNAP.fullmatch(f.name) and f != current),
+                    key=_snap_number, reverse=True)
+    return ([current] if current is not None else []) + others
+
+
+def set_aside(state_dir: str | os.PathLike[str]) -> Path:
+    """Move everything in the state directory into its ``previous/`` folder (an older one is
+    replaced): the node then starts afresh, and nothing is lost that an engineer may want."""
+    root = Path(state_dir)
+    prev = root / PREVIOUS
+    shutil.rmtree(prev, ignore_errors=True)
+    prev.mkdir()
+    for item in root.iterdir():
+        if item.name != PREVIOUS:
+            os.replace(item, prev / item.name)
+    _fsync_dir(root)
+    return prev
+
+
+def _same_source(meta: dict[str, Any], source: str, source_id: dict[str, Any] | None) -> bool:
+    if source_id is not None and meta.get("source_id") is not None:
+        return meta["source_id"] == source_id
+    # a snapshot without an identity (written before it was kept): its recording's path
+    return not (source and meta.get("source") and meta["source"] != source)
+
+
+def restore(state_dir: str | os.PathLike[str], pipeline: Any, *, source: str = "",
+            source_id: dict[str, Any] | None = None) -> dict[str, Any] | None:
+    """Resume ``pipeline`` from the best snapshot in ``state_dir``; return its meta, or None
+    when the node starts afresh. Never raises on a damaged state directory.
+
+    Tries :func:`snapshot_folders` in turn, each unreadable one reported in one warning. A
+    snapshot of another recording than ``source_id`` (None: any, as the live node, whose state
+    follows it from recording to recording), or no readable snapshot at all, moves the state
+    to ``previous/`` (:func:`set_aside`) and starts afresh.
+    """
+    root = Path(state_dir)
+    if not root.is_dir():
+        return None
+    folders = snapshot_folders(root)
+    current = read_current(root)
+    damaged: list[str] = []
+    for folder in folders:
+        try:
+            snap = read_snapshot(folder)
+        except AtrError as exc:  # said once, with the snapshot resumed from or with "afresh"
+            damaged.append(str(exc))
+            continue
+        if not _same_source(snap.meta, source, source_id):
+            prev = set_aside(root)
+            log.warning("state %s is of recording %s, not %s: starting afresh (the old state is in %s)", root,
+                        snap.meta.get("source") or "(unnamed)", source or "(unnamed)", prev)
+            return None
+        if folder != current:
+            why = "; ".join(damaged) if damaged else "CURRENT is unreadable or names no snapshot"
+            log.warning("state %s: %s; resuming from %s, the newest snapshot that reads back", root, why, folder.name)
+            # CURRENT names it from now on: the next snapshot keeps it as the previous one,
+            # and removes the damaged ones
+            _write_current(root, folder)
+        return apply(snap, pipeline)
+    if folders or (root / "CURRENT").exists():
+        prev = set_aside(root)  # the next snapshots start a clean numbering
+        why = "; ".join(damaged) if damaged else "CURRENT names no snapshot"
+        log.warning("state %s: no snapshot reads back (%s): starting afresh (the damaged state is in %s)", root, why,
+                    prev)
+    return None
+
+
+def apply(snap: Snapshot, pipeline: Any) -> dict[str, Any]:
+    """Restore ``pipeline`` from a snapshot read by :func:`read_snapshot`; return its meta."""
+    meta, a, grid, tracker_state = snap.meta, snap.arrays, snap.grid, snap.tracker_state
     pipeline.grid = grid
     pipeline.reserve_fusion()
     if meta["frame"] is not None:
@@ -133,6 +287,8 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     arrays: dict[str, np.ndarray] = {}
     meta: dict[str, Any] = {
         "frame": p.frame.to_dict() if p.frame is not None else None,
+        # the fixes gathered for a frame not yet fixed: the resumed node fixes the same origin
+        "origin_fixes": [list(f) for f in p.origin.fixes], "origin_implausible": p.origin.implausible,
         "tiles_merged": p.tiles_merged, "leg": p.leg, "strip_leg": p._strip_leg, "last_t": p._last_t,
         "stats": {k: getattr(p.stats, k) for k in ("records", "tiles_in", "tiles_done", "tiles_rejected",
                                                     "tiles_dropped", "units", "units_degraded", "pixels")},
@@ -179,6 +335,8 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     track.update({k[len("track_"):]: v for k, v in meta.items() if k.startswith("track_")})
     p.track.restore(track)
     p.tiles_merged = int(meta["tiles_merged"])
+    p.origin.fixes = [(float(lat), float(lon)) for lat, lon in meta.get("origin_fixes", [])]
+    p.origin.implausible = int(meta.get("origin_implausible", 0))
     p._last_t = float(meta.get("last_t", 0.0))  # the time of the contacts published at finish()
     p._strip_leg = meta.get("strip_leg")
     p.leg = meta["leg"]

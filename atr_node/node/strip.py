@@ -47,7 +47,9 @@ class StripUnit:
     tiles: tuple[int, ...]
     """seq of the tiles whose rows are in the core."""
     completed: tuple[int, ...] = ()
-    """seq of the tiles whose last rows are in this core: their evidence is complete with it."""
+    """seq of the tiles whose last rows are in this core: their evidence is complete with it.
+    One entry per tile, even when tiles repeat a seq (tiles are told apart by their arrival
+    number, not their seq): ``len(completed)`` is the number of tiles done."""
 
     @property
     def core_rows(self) -> int:
@@ -60,7 +62,8 @@ class StripUnit:
 
 
 class _Rows:
-    """Rows of one leg and side kept between tiles: pixels, times, nav, origin tile seq.
+    """Rows of one leg and side kept between tiles: pixels, times, nav, origin tile's arrival
+    number (``src``: the assembler numbers the tiles it is given, 0, 1, 2, ...; a seq may repeat).
 
     Appended blocks are kept as they come and joined once, when a unit is cut (:meth:`cat`):
     a tile's pixels are copied once on their way into a unit, not once more into the pending
@@ -142,6 +145,8 @@ class _LegState:
     last_time: float
     context: _Rows
     pending: _Rows
+    seqs: dict[int, int]
+    """Arrival number -> seq of the tiles with rows in ``pending`` (``src`` holds the number)."""
 
 
 def _nav_array(tile: Tile) -> np.ndarray:
@@ -165,6 +170,11 @@ class StripAssembler:
         self.m = int(margin_rows)
         self.max_gap_s = float(max_gap_s)
         self._legs: dict[str, _LegState] = {}
+        self._next = 0
+        """Arrival number of the next tile pushed: what tells tiles apart in the rows (``src``)."""
+        self.seq_repeats = 0
+        """Tiles whose seq did not increase on the previous tile of their strip (ICD section 1:
+        +1 per tile and side); they are still joined and counted by arrival."""
         self.alloc = alloc
         """Memory for each unit's pixels, (rows, cols) float32 (None: a new array): the node
         gives shared memory its worker reads in place (``atr_node.node.pixelshm``). The
@@ -183,10 +193,14 @@ class StripAssembler:
             st = None
         if st is None:
             st = _LegState(tile.mission, tile.leg, tile.side, tile.range0_m, tile.dr_m, tile.dx_m, tile.kind,
-                           tile.cols, tile.seq, -np.inf, _Rows(tile.cols), _Rows(tile.cols))
+                           tile.cols, tile.seq, -np.inf, _Rows(tile.cols), _Rows(tile.cols), {})
             self._legs[tile.side] = st
+        elif tile.seq <= st.last_seq:
+            self.seq_repeats += 1
         px = self._on_axis(tile, st)
-        st.pending.append(px, tile.ping_time, _nav_array(tile), tile.seq)
+        n, self._next = self._next, self._next + 1
+        st.seqs[n] = tile.seq
+        st.pending.append(px, tile.ping_time, _nav_array(tile), n)
         st.last_seq, st.last_time = tile.seq, float(tile.ping_time[-1])
         n_core = len(st.pending) - self.m
         if n_core > 0:
@@ -222,12 +236,15 @@ class StripAssembler:
         core = slice(len(ctx), len(ctx) + n_core)
         nav = rows.nav
         core_end = core.stop
-        in_core = np.unique(rows.src[core])
+        in_core = [int(n) for n in np.unique(rows.src[core])]
         later = set(np.unique(rows.src[core_end:]).tolist())
+        done = [n for n in in_core if n not in later]
         unit = StripUnit(st.mission, st.leg, st.side, st.last_seq, rows.px, rows.t,
                          TileNav(nav[:, 0].copy(), nav[:, 1].copy(), nav[:, 2].copy(), nav[:, 3].copy()), core,
-                         st.range0_m, st.dr_m, st.dx_m, st.kind, tuple(int(s) for s in in_core),
-                         tuple(int(s) for s in in_core if int(s) not in later))
+                         st.range0_m, st.dr_m, st.dx_m, st.kind, tuple(st.seqs.get(n, n) for n in in_core),
+                         tuple(st.seqs.get(n, n) for n in done))
+        for n in done:  # no row of theirs is pending any more
+            st.seqs.pop(n, None)
         # the new context: the last m core rows; the new pending: the rows after the core
         # (copies, a margin's rows each: the unit's memory may be reused once it is fused)
         st.context = rows.take(slice(max(core_end - self.m, 0), core_end), copy=True)
@@ -242,6 +259,8 @@ class StripAssembler:
         for side, st in self._legs.items():
             out[side] = {k: getattr(st, k) for k in ("mission", "leg", "side", "range0_m", "dr_m", "dx_m", "kind",
                                                       "cols", "last_seq", "last_time")}
+            out[side]["seqs"] = [[n, s] for n, s in st.seqs.items()]  # JSON: no int keys
+            out[side]["next"] = self._next
             for name in ("context", "pending"):
                 r = getattr(st, name)
                 out[side][name] = {"px": r.px, "t": r.t, "nav": r.nav, "src": r.src}
@@ -254,6 +273,11 @@ class StripAssembler:
             for name in ("context", "pending"):
                 px, t, nav, src = (np.asarray(d[name][k]) for k in ("px", "t", "nav", "src"))
                 rows[name] = _Rows.of(px.reshape(-1, int(d["cols"])), t, nav.reshape(-1, 4), src)
+            # a snapshot older than the arrival numbers holds seqs in src: each its own number
+            seqs = {int(n): int(s) for n, s in d.get("seqs", [[int(x), int(x)] for x in np.unique(rows["pending"].src)])}
             self._legs[side] = _LegState(d["mission"], int(d["leg"]), d["side"], float(d["range0_m"]),
                                          float(d["dr_m"]), float(d["dx_m"]), d["kind"], int(d["cols"]),
-                                         int(d["last_seq"]), float(d["last_time"]), rows["context"], rows["pending"])
+                                         int(d["last_seq"]), float(d["last_time"]), rows["context"], rows["pending"],
+                                         seqs)
+            srcs = [int(rows[k].src.max()) + 1 for k in ("context", "pending") if len(rows[k])]
+            self._next = max([self._next, int(d.get("next", 0)), *srcs])

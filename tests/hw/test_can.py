@@ -86,7 +86,7 @@ def test_decoder_counts_unknown_and_bad_frames_and_goes_on():
     assert d.feed(0x100, b"\x00" * 3, False, 0.0) == []  # short
     bad_lat = struct.pack("<ii", 1_000_000_000, 0)  # 100 deg
     assert d.feed(0x100, bad_lat, False, 0.0) == []
-    assert (d.counts["unknown"], d.counts["bad_frame"], d.counts["invalid"]) == (2, 1, 1)
+    assert (d.counts["unknown"], d.counts["bad_length"], d.counts["out_of_range"]) == (2, 1, 1)
     assert d.feed(*encode_position(1.0, 2.0), 0.0)[0].lat_deg == pytest.approx(1.0)
 
 
