@@ -466,9 +466,16 @@ class NodeSettings:
     live_main_scores: bool = True
     """Live mode: while the worker scores one unit, the next ones wait in the main process,
     which scores them itself whenever it is idle: the second side of a ping no longer waits
-    for the first (the worst 8-Mpx tile latency about 0.1 s lower, ``tools/latency_breakdown.py``).
+    for the first (the worst 8-Mpx tile latency about 0.1 s lower, ``tools/bench/node.py latency``).
     Needs ``warm_up_mpx > 0``: the main process then warms up its own detector memory at start,
     as the worker does (another ~0.65 GB at 8 Mpx). Off = every unit goes to the worker."""
+    max_tile_pixels: int = 1 << 23
+    """Largest tile (rows x cols, after a slant tile's conversion to ground range) the node takes:
+    beyond it the tile is refused, counted under ``tile field shape`` (or the nav merge's ``slant
+    range axis too long``), before its pixels are converted. Detection and fusion take about
+    225 MiB plus 80 B per pixel of the largest tile (``docs/reliability.md``, memory budget): the
+    default 8 Mpx (2^23) peaks near 0.9 GiB, within the node's 2 GiB budget with room for the
+    evidence grid; the wire format's own limit is 2^28."""
 
     def __post_init__(self) -> None:
         _check(self.queue_tiles >= 1, "node.queue_tiles", "must be >= 1")
@@ -476,6 +483,8 @@ class NodeSettings:
         _check(self.snapshot_every_tiles >= 1, "node.snapshot_every_tiles", "must be >= 1")
         _check(self.nav_max_gap_s > 0, "node.nav_max_gap_s", "must be > 0")
         _check(0 <= self.warm_up_mpx <= 64, "node.warm_up_mpx", "must be in [0, 64] Mpx")
+        _check(isinstance(self.max_tile_pixels, int) and 1 <= self.max_tile_pixels <= 1 << 28,
+               "node.max_tile_pixels", "must be an integer in [1, 2^28]")
 
 
 @dataclass(frozen=True)
@@ -624,6 +633,8 @@ def _read_toml(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
         raise ConfigError(f"cannot read: {exc.strerror}", path=str(path)) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"not valid TOML: {exc}", path=str(path)) from None
+    except UnicodeDecodeError as exc:  # TOML is UTF-8; tomllib decodes before parsing (found by atheris)
+        raise ConfigError(f"not valid TOML: not UTF-8 at byte {exc.start}", path=str(path)) from None
     include = table.get("include")
     if include is not None:
         if not isinstance(include, str):

@@ -20,7 +20,7 @@ from atr_node.io.atrlog import LogRecord
 from atr_node.records.nav import NavFix
 
 from .can_nav import CanNavDecoder, LegChange
-from .nmea import NmeaDecoder
+from .nmea_decoder import NmeaDecoder
 
 NavEvent = NavFix | LegChange
 

@@ -5,10 +5,11 @@ Every error a driver raises on purpose is a :class:`LinkError`, itself an
 was expected::
 
     AtrError
+     +-- NmeaError              a sentence that cannot be encoded (atr_node.io.nmea_encode; decoding
+     |                          never raises: it counts)
      +-- LinkError              a link driver (names the link or URL)
           +-- LinkSpecError     a link spec, URL or option that cannot be opened as given
           +-- LinkClosedError   recv() on a link after shutdown()
-          +-- NmeaError         a sentence that cannot be encoded (decoding never raises: it counts)
           +-- CanCodecError     a CAN frame that cannot be encoded from the given values
 
 Bad *input* on a live link (garbage, bad checksums, unknown frames) never raises: decoders
@@ -32,8 +33,7 @@ class LinkClosedError(LinkError):
     """The link was shut down."""
 
 
-class NmeaError(LinkError, ValueError):
-    """A sentence cannot be encoded from the given fields."""
+from atr_node.io.nmea_encode import NmeaError  # noqa: E402,F401  (defined with the encoders, in atr_node.io)
 
 
 class CanCodecError(LinkError, ValueError):

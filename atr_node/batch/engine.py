@@ -53,7 +53,8 @@ def worker_setup() -> None:
     import cv2
 
     cv2.setNumThreads(1)
-    import atr_node.batch.grids  # noqa: F401
+    # grids' heavy dependencies, not grids itself: grids imports this module (no circle)
+    import atr_node.fusion  # noqa: F401
     import atr_node.node.pipeline  # noqa: F401
 
 

@@ -8,13 +8,16 @@ interval. Pure: the same responses and settings give the same model.
 from __future__ import annotations
 
 import datetime as _dt
+import itertools
+import math
 from typing import Any, Mapping
 
 import numpy as np
 
 from .. import __version__
 from ..config import CalibrationSettings, ThresholdSettings
-from .looks import area_prior, estimate_looks
+from . import looks as _looks
+from .looks import area_prior
 from .model import DetectorPerformance, PerformanceModel
 from .responses import Responses
 from .stats import confidence_curve, dobeck_threshold, pd_curve, range_edges
@@ -125,3 +128,43 @@ def cell_prior(calibration: CalibrationSettings, provenance: Mapping[str, Any]) 
     area = float(area) if isinstance(area, (int, float)) and np.isfinite(area) and area > 0 else DEFAULT_CELL_AREA_M2
     return area_prior(calibration.target_density_km2, area), {
         "prior": "area", "target_density_km2": float(calibration.target_density_km2), "cell_area_m2": area}
+
+
+def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: Any, prior_target: float,
+                   edges_m: np.ndarray) -> _looks.LookModel:
+    """Look tables for every non-empty subset of ``responses.detectors`` (SPEC 6.1).
+
+    Needs joint non-target responses: the same cells for every detector (as
+    :func:`~atr_node.calibration.responses.collect_image` records them); where the detectors'
+    non-target arrays differ in length (responses pooled from elsewhere), no table is made.
+    """
+    dets = tuple(responses.detectors)
+    tails = {d: _looks.tail_table(responses.nontarget[d]) for d in dets}
+    sizes = {np.asarray(responses.nontarget[d]).size for d in dets}
+    info: dict[str, Any] = {"score": _looks.SCORE_DEFINITION,
+                            "fired": "at least one detector of the set above its threshold",
+                            "confidence": "P(T | Z >= z, fired), prior per cell as for the detectors",
+                            "pd": "share of injected targets on which the set fired, per range bin"}
+    if len(sizes) != 1:
+        info["skipped"] = "non-target responses of the detectors are not joint (different lengths)"
+        return _looks.LookModel(tails, {}, info)
+    tables = {}
+    for n in range(1, len(dets) + 1):
+        for subset in itertools.combinations(dets, n):
+            z_t, f_t, z_n, f_n = _looks.look_scores(responses.target, responses.nontarget, taus, tails, subset)
+            fired_z = np.concatenate([z_t[f_t & np.isfinite(z_t)], z_n[f_n & np.isfinite(z_n)]])
+            # the fired responses above a threshold below all of them, the others below it:
+            # confidence_curve's "exceedances" are then exactly the fired ones
+            tau = float(fired_z.min()) - 1e-9 * max(1.0, abs(float(fired_z.min()))) if fired_z.size else 0.0
+            below = tau - 1.0
+            x_t = np.where(f_t, z_t, np.where(np.isfinite(z_t), below, np.nan))
+            x_n = np.where(f_n, z_n, np.where(np.isfinite(z_n), below, np.nan))
+            conf = confidence_curve(x_t, x_n, tau, prior_target=prior_target,
+                                    n_points=calibration.confidence_points, smoothing=calibration.smoothing)
+            det_t = np.where(np.isfinite(z_t), f_t.astype(np.float64), np.nan)
+            pyr = pd_curve(responses.target_range_m, det_t, 0.5, edges_m=edges_m, smoothing=calibration.smoothing)
+            covered = np.isfinite(z_t)
+            pd_tau = float(np.mean(f_t[covered])) if covered.any() else math.nan
+            tables[_looks.subset_key(subset)] = DetectorPerformance(tau=tau, confidence=conf, pyr=pyr, tau_source="look",
+                                                             pd_at_tau=pd_tau)
+    return _looks.LookModel(tails, tables, info)

@@ -28,7 +28,6 @@ detectors it runs.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
@@ -40,6 +39,8 @@ from ..config import DETECTOR_NAMES
 SCORE_DEFINITION = "z = sum over detectors of -ln S_N,d(gamma_d) (background tail; 0 where not covered)"
 TAIL_POINTS = 48
 """Knots of a detector's tail table u_d."""
+TAIL_EXTRA = math.log(10.0)
+"""How far u_d goes beyond the largest background response: one decade of survival."""
 TAIL_MIN_EXCESS = 10
 """Fewest background responses over the tail threshold to fit the exponential tail."""
 
@@ -60,8 +61,9 @@ class TailTable:
     """``u(g) = -ln S_N(g)`` of one detector on knots ``gamma`` (increasing), ``u``
     non-decreasing, >= 0; linear between knots, flat below the first; beyond the last knot
     (the largest background response) it goes on with ``slope`` = 1 / the mean excess of the
-    upper tail (an exponential tail, peaks over threshold), so a response far beyond anything
-    the seabed gave still ranks above a marginal one."""
+    upper tail (an exponential tail, peaks over threshold) for at most one decade of survival
+    (:data:`TAIL_EXTRA`), so a response beyond anything the seabed gave still ranks above a
+    marginal one, but no single detector's extreme carries the look alone."""
 
     gamma: np.ndarray
     u: np.ndarray
@@ -72,8 +74,10 @@ class TailTable:
         x = np.where(np.isnan(g), self.gamma[0], g)
         out = np.interp(x, self.gamma, self.u)
         if self.slope > 0.0:
-            # +inf stays finite: the excess is clipped far beyond any table of z
-            beyond = np.clip(x - self.gamma[-1], 0.0, 1e6 / self.slope) * self.slope
+            # one decade of survival beyond the data at most (TAIL_EXTRA): the fitted tail is
+            # not trusted further, so one detector's extreme value (a lacunarity blowing up at
+            # the swath's edge) cannot carry the look on its own; +inf stays finite
+            beyond = np.minimum(np.clip(x - self.gamma[-1], 0.0, None) * self.slope, TAIL_EXTRA)
             out = out + beyond
         return np.where(np.isnan(g), 0.0, out)
 
@@ -156,49 +160,6 @@ def look_scores(target: Mapping[str, np.ndarray], nontarget: Mapping[str, np.nda
         z = _combine(us)
         out += [np.where(covered, z, np.nan), fired]
     return out[0], out[1], out[2], out[3]
-
-
-def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: Any, prior_target: float,
-                   edges_m: np.ndarray) -> LookModel:
-    """Look tables for every non-empty subset of ``responses.detectors`` (SPEC 6.1).
-
-    Needs joint non-target responses: the same cells for every detector (as
-    :func:`~atr_node.calibration.responses.collect_image` records them); where the detectors'
-    non-target arrays differ in length (responses pooled from elsewhere), no table is made.
-    """
-    from .model import DetectorPerformance
-    from .stats import confidence_curve, pd_curve
-
-    dets = tuple(responses.detectors)
-    tails = {d: tail_table(responses.nontarget[d]) for d in dets}
-    sizes = {np.asarray(responses.nontarget[d]).size for d in dets}
-    info: dict[str, Any] = {"score": SCORE_DEFINITION,
-                            "fired": "at least one detector of the set above its threshold",
-                            "confidence": "P(T | Z >= z, fired), prior per cell as for the detectors",
-                            "pd": "share of injected targets on which the set fired, per range bin"}
-    if len(sizes) != 1:
-        info["skipped"] = "non-target responses of the detectors are not joint (different lengths)"
-        return LookModel(tails, {}, info)
-    tables = {}
-    for n in range(1, len(dets) + 1):
-        for subset in itertools.combinations(dets, n):
-            z_t, f_t, z_n, f_n = look_scores(responses.target, responses.nontarget, taus, tails, subset)
-            fired_z = np.concatenate([z_t[f_t & np.isfinite(z_t)], z_n[f_n & np.isfinite(z_n)]])
-            # the fired responses above a threshold below all of them, the others below it:
-            # confidence_curve's "exceedances" are then exactly the fired ones
-            tau = float(fired_z.min()) - 1e-9 * max(1.0, abs(float(fired_z.min()))) if fired_z.size else 0.0
-            below = tau - 1.0
-            x_t = np.where(f_t, z_t, np.where(np.isfinite(z_t), below, np.nan))
-            x_n = np.where(f_n, z_n, np.where(np.isfinite(z_n), below, np.nan))
-            conf = confidence_curve(x_t, x_n, tau, prior_target=prior_target,
-                                    n_points=calibration.confidence_points, smoothing=calibration.smoothing)
-            det_t = np.where(np.isfinite(z_t), f_t.astype(np.float64), np.nan)
-            pyr = pd_curve(responses.target_range_m, det_t, 0.5, edges_m=edges_m, smoothing=calibration.smoothing)
-            covered = np.isfinite(z_t)
-            pd_tau = float(np.mean(f_t[covered])) if covered.any() else math.nan
-            tables[subset_key(subset)] = DetectorPerformance(tau=tau, confidence=conf, pyr=pyr, tau_source="look",
-                                                             pd_at_tau=pd_tau)
-    return LookModel(tails, tables, info)
 
 
 def with_prior(curve_c: np.ndarray, old_prior: float, new_prior: float) -> np.ndarray:

@@ -16,7 +16,7 @@ most of it in the statistics pass, and the peak search gathered over the whole m
    row-major order), with ``np.minimum.at`` / ``np.maximum.at`` and ``np.bincount``.
 
 ``tests/detectors/test_extract.py`` checks the result equal, field for field and in order,
-to a plain ``scipy.ndimage.label`` reference; ``tools/bench_extract.py`` measures the speed.
+to a plain ``scipy.ndimage.label`` reference; ``tools/bench/detectors.py extract`` measures the speed.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from .windows import WindowGeometry
 _BLOCK_BYTES = 3 << 17
 """Target size of one row strip (384 kB), so a block's intermediates stay in cache (the L2 of
 this machine's cores is 1 MB): best of 256 kB-1 MB on the benchmark tile, 168-173 ms against
-185-189 ms for 1 MB (``tools/bench_detectors.py``, 2026-11-23)."""
+185-189 ms for 1 MB (``tools/bench/detectors.py score``, 2026-11-23)."""
 
 
 def _separable_recips(anchor_rows: np.ndarray, rows_off: tuple[int, int], cols_in: np.ndarray,

@@ -57,7 +57,7 @@ def keep_freed_memory(trim_bytes: int = 256 << 20, mmap_bytes: int = 32 << 20) -
     some blocks with fresh ``mmap``), so the next block touches fresh pages again: a page fault
     per 4 kB, which on a virtual machine costs as much as the arithmetic. Measured on the
     2048 x 4096 benchmark tile: 277-293 ms best of 12 with the defaults, 192-219 ms with
-    freed memory kept (``tools/bench_detectors.py``). Memory is only kept up to
+    freed memory kept (``tools/bench/detectors.py score``). Memory is only kept up to
     ``trim_bytes`` free at the top of the heap; allocations under ``mmap_bytes`` come from the
     heap. Once per process; a no-op (False) where malloc is not glibc's, or with the
     environment variable ``ATR_KEEP_FREED_MEMORY=0`` (to measure the defaults).

@@ -37,6 +37,7 @@ from ..errors import FusionError
 from .chunks import ChunkStack, Key, LegLayer, layer_terms, layer_terms_covered
 from .deposit import PdReducer
 from .mass import TNMasses, closed_form
+from .merge import merge_into  # one way: merge.py names EvidenceGrid for type checkers only
 from .observation import DetectionRecord, Observation, association_gate_m, gate_cells, record_extent
 
 __all__ = ["DetectionRecord", "EvidenceGrid", "association_gate_m"]
@@ -509,6 +510,4 @@ class EvidenceGrid:
     # ------------------------------------------------------------------ merge
     def merge(self, other: "EvidenceGrid") -> None:
         """Add another grid's evidence to this one: see :func:`atr_node.fusion.merge.merge_into`."""
-        from .merge import merge_into
-
         merge_into(self, other)

@@ -21,11 +21,12 @@ References
 ----------
 G. Shafer, *A Mathematical Theory of Evidence*, Princeton University Press, 1976.
 V. Myers and O. Midtgaard, "Fusion of contacts in synthetic aperture sonar imagery using
-performance estimates" (``/work/shared/seed``), section 5.
+performance estimates", section 5.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Hashable, Iterable, Mapping
 from typing import NamedTuple
 
@@ -94,15 +95,48 @@ def combine(m1: Mass, m2: Mass) -> tuple[dict[frozenset, float], float]:
 
 
 def combine_all(masses: Iterable[Mass]) -> dict[frozenset, float]:
-    """``m1 (+) m2 (+) ... (+) mk`` by iterated :func:`combine` (vacuous mass for no evidence)."""
+    """``m1 (+) m2 (+) ... (+) mk``: Dempster's rule applied in turn, as :func:`combine`, on
+    the logs of the masses.
+
+    Products of masses are sums of logs and each normalisation subtracts a log-sum-exp, so a
+    focal set's mass relative to another may fall far below float64's range (10^4 pieces at
+    1 - 1e-12 put m(Theta) near 1e-120000) without becoming 0. In linear masses it underflows,
+    the rest of the chain then sees a categorical mass, and the answer depends on the order
+    of the pieces: (1, 0), (0, 1) or (1/2, 1/2) for the same evidence (issue 21 item 8).
+
+    Raises
+    ------
+    FusionError
+        No mass function, or total conflict between the evidence combined so far and the next.
+    """
     it = iter(masses)
     try:
-        acc = dict(next(it))
+        first = next(it)
     except StopIteration:
         raise FusionError("combine_all needs at least one mass function") from None
+    acc = {c: math.log(v) for c, v in first.items() if v > 0.0}
     for m in it:
-        acc, _ = combine(acc, m)
-    return acc
+        terms: dict[frozenset, list[float]] = {}
+        for a, la in acc.items():
+            for b, mb in m.items():
+                c = a & b
+                if c and mb > 0.0:
+                    terms.setdefault(c, []).append(la + math.log(mb))
+        if not terms:
+            raise FusionError("total conflict (K = 1.0): Dempster's rule is undefined")
+        acc = {c: _logsumexp(v) for c, v in terms.items()}
+        norm = _logsumexp(list(acc.values()))  # log(1 - K)
+        acc = {c: v - norm for c, v in acc.items()}
+    out = {c: math.exp(v) for c, v in acc.items()}
+    return {c: v for c, v in out.items() if v > 0.0}
+
+
+def _logsumexp(logs: list[float]) -> float:
+    """``log(sum(exp(x)))`` without overflow or underflow (the largest term factored out)."""
+    top = max(logs)
+    if top == -math.inf:
+        return top
+    return top + math.log(math.fsum(math.exp(x - top) for x in logs))
 
 
 def belief(m: Mass, hypothesis: frozenset) -> float:
@@ -207,12 +241,19 @@ def closed_form(log_a: np.ndarray | float, log_b: np.ndarray | float) -> TNMasse
     with np.errstate(divide="ignore", invalid="ignore"):
         log_u = np.log(-np.expm1(la))  # log(1 - a); -inf when a = 1 (no T evidence)
         log_w = np.log(-np.expm1(lb))
-        log_d = np.logaddexp(la, lb + log_u)  # log(a + (1 - a) b)
-        conflict = np.isneginf(log_d)
-        log_d = np.where(conflict, 0.0, log_d)
-        m_t = np.exp(log_u + lb - log_d)
-        m_n = np.exp(log_w + la - log_d)
-        m_theta = np.exp(la + lb - log_d)
+        # Everything relative to the larger accumulator M: the masses depend on a and b only
+        # through u, w and b / a = exp(L_N - L_T). At |L| >= 2^53 log D = M + log(D / M)
+        # rounds back to M (log 2 is lost), so m(T) = m(notT) = 1 (Bel > Pl); at 10^6
+        # pieces the lost bits made the masses sum to 1 + 1.8e-9 (issue 21 item 8).
+        top = np.maximum(la, lb)
+        conflict = np.isneginf(top)  # a = b = 0: total conflict
+        top = np.where(conflict, 0.0, top)
+        ra = la - top  # log(a / M) <= 0; one of ra, rb is exactly 0
+        rb = lb - top
+        log_d = np.logaddexp(ra, rb + log_u)  # log((a + (1 - a) b) / M), in [-log 2, log 2]
+        m_t = np.exp(log_u + rb - log_d)
+        m_n = np.exp(log_w + ra - log_d)
+        m_theta = np.exp(np.minimum(la, lb) - log_d)  # a b / D = min(a, b) / (D / M)
     if conflict.any():
         m_t = np.where(conflict, 0.5, m_t)
         m_n = np.where(conflict, 0.5, m_n)

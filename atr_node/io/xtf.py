@@ -42,13 +42,11 @@ from typing import Iterator
 
 import numpy as np
 
-from hw.errors import NmeaError
-from hw.nmea import KNOT_M_S, encode_dpt, encode_gga, encode_hdt, encode_zda, format_sentence
-
 from ..config import SensorSettings
 from ..records.nav import _haversine_m, nav_jumps
 from ..records.tile import SensorInfo, Tile, TileNav
 from .atrlog import LogRecord
+from .nmea_encode import KNOT_M_S, NmeaError, encode_dpt, encode_gga, encode_hdt, encode_zda, format_sentence
 from .xtf_bottom import BottomTrack, shares_axis, track_bottom
 from .xtf_packets import XtfNav, XtfPing, XtfSerial, iter_xtf_items, note_fields, read_positions
 from .xtf_stats import XtfStats

@@ -152,7 +152,7 @@ _WORKSPACE = Workspace()
 def worker_init(threads: int = 1) -> None:
     """Worker process start: one OpenCV thread (the main process has the other core), and a
     watch on the parent: when the node is SIGKILLed the worker would otherwise live on as an
-    orphan holding its memory (found by tools/kill_restart.py), so it exits when its parent
+    orphan holding its memory (found by tools/soak/kill_restart.py), so it exits when its parent
     changes."""
     cv2.setNumThreads(threads)
     import multiprocessing

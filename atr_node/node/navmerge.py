@@ -85,8 +85,10 @@ class NavMerger:
     def __init__(self, track: NavTrack, *, max_gap_s: float = 2.0, max_speed_m_s: float = 15.0,
                  default_altitude_m: float = 14.0, max_held: int = 64, first_return_band_m: float = 0.0,
                  first_return_level: float = 0.0, first_return_band_max_m: float = 2.5,
-                 on_drop: Callable[[Tile, str], None] | None = None) -> None:
+                 on_drop: Callable[[Tile, str], None] | None = None, max_pixels: int = 1 << 28) -> None:
         self.on_drop = on_drop
+        self.max_pixels = int(max_pixels)
+        """Largest ground-range tile a slant tile may become (``node.max_tile_pixels``)."""
         self.track = track
         self.max_gap_s = float(max_gap_s)
         self.max_speed_m_s = float(max_speed_m_s)
@@ -182,7 +184,7 @@ class NavMerger:
             # blows a few columns far out into a huge, empty tile (40 columns at 65 km: 650 000
             # columns, seconds of detection; both found by fuzzing)
             far_cols = (tile.range0_m + tile.dr_m * (tile.cols - 1)) / tile.dr_m + 1
-            if (not math.isfinite(far_cols) or far_cols * tile.rows > 1 << 28
+            if (not math.isfinite(far_cols) or far_cols * tile.rows > self.max_pixels
                     or far_cols > max(64 * tile.cols, 1 << 16)):
                 key = "slant range axis too long for a ground-range tile"
                 self.stats.reasons[key] = self.stats.reasons.get(key, 0) + 1

@@ -180,7 +180,8 @@ class Pipeline:
                                 default_altitude_m=settings.sensor.altitude_m, on_drop=self._on_nav_drop,
                                 first_return_band_m=settings.sensor.first_return_band_m,
                                 first_return_level=settings.sensor.first_return_level,
-                                first_return_band_max_m=settings.sensor.first_return_band_max_m)
+                                first_return_band_max_m=settings.sensor.first_return_band_max_m,
+                                max_pixels=settings.node.max_tile_pixels)
         self.strips: StripAssembler | None = None
         self.frame: MissionFrame | None = None
         self.origin = OriginEstimator()
@@ -291,7 +292,7 @@ class Pipeline:
         self.stats.records += 1
         if rec.link == "sonar":
             try:
-                tile = Tile.from_map(rec.msg)
+                tile = Tile.from_map(rec.msg, max_pixels=self.settings.node.max_tile_pixels)
             except TileError as exc:
                 self.stats.tiles_rejected += 1
                 key = f"tile field {exc.field}"

@@ -13,7 +13,7 @@ goes (``time.monotonic``, seconds) and keeps the last ones in ``PipelineStats.st
 
 plus ``detect_s`` (detection inside the worker), ``deposit_s`` (``add_observation``) and
 ``contacts_s`` (contact extraction and publishing). :func:`breakdown` turns them into the
-table ``tools/latency_breakdown.py`` prints.
+table ``tools/bench/node.py latency`` prints.
 """
 
 from __future__ import annotations

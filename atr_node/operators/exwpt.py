@@ -42,10 +42,8 @@ from typing import Any, Mapping
 
 import serial
 
-from hw.errors import NmeaError
-from hw.nmea import format_sentence
-
 from ..errors import AtrError
+from ..io.nmea_encode import NmeaError, format_sentence
 
 log = logging.getLogger(__name__)
 

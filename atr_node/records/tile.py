@@ -34,6 +34,9 @@ TILE_VERSION = 1
 SPACING_LIMITS_M = (1e-3, 100.0)
 """Plausible dr_m and dx_m: outside, window sizes and range axes overflow (found by fuzzing)."""
 MAX_RANGE_M = 1e5
+MAX_PIXELS = 1 << 28
+"""Most pixels the wire format lets a tile declare (the node's own limit is lower:
+``node.max_tile_pixels``)."""
 """Farthest plausible range of a tile's last column."""
 WIRE_DTYPES: dict[str, np.dtype] = {
     "float32": np.dtype("<f4"),
@@ -189,9 +192,10 @@ class Tile:
         return msgpack.packb(self.to_map(), use_bin_type=True)
 
     @classmethod
-    def from_map(cls, m: Any) -> "Tile":
-        """Parse and validate an ICD section 1 map; raise :class:`TileError` naming the field."""
-        return parse_tile(m)
+    def from_map(cls, m: Any, *, max_pixels: int | None = None) -> "Tile":
+        """Parse and validate an ICD section 1 map; raise :class:`TileError` naming the field
+        (``max_pixels``: see :func:`parse_tile`)."""
+        return parse_tile(m, max_pixels=max_pixels)
 
     @classmethod
     def unpack(cls, payload: bytes) -> "Tile":
@@ -293,8 +297,12 @@ def _f64_bin(value: Any, n: int, where: str, fld: str) -> np.ndarray:
     return np.frombuffer(value, dtype="<f8").astype(np.float64)
 
 
-def parse_tile(m: Any) -> Tile:
+def parse_tile(m: Any, *, max_pixels: int | None = None) -> Tile:
     """Validate a decoded ICD section 1 map and build a :class:`Tile`.
+
+    ``max_pixels``: refuse a tile of more pixels (the node's memory budget,
+    ``node.max_tile_pixels``), checked before its pixels are converted; None: the wire
+    format's limit (:data:`MAX_PIXELS`) only.
 
     Raises
     ------
@@ -325,8 +333,12 @@ def parse_tile(m: Any) -> Tile:
             or shape[0] < 1 or shape[1] < 1):
         raise TileError(f"expected [rows, cols] of positive integers, got {shape!r}", tile=where, field="shape")
     rows, cols = int(shape[0]), int(shape[1])
-    if rows * cols > 1 << 28:
+    if rows * cols > MAX_PIXELS:
         raise TileError(f"{rows} x {cols} pixels is more than the 2^28 a tile may hold", tile=where, field="shape")
+    if max_pixels is not None and rows * cols > max_pixels:
+        # before any pixel is converted: detection needs ~80 B per pixel (node.max_tile_pixels)
+        raise TileError(f"{rows} x {cols} = {rows * cols} pixels is more than node.max_tile_pixels = {max_pixels}",
+                        tile=where, field="shape")
     if not isinstance(m["dtype"], str) or m["dtype"] not in WIRE_DTYPES:  # a list or map is unhashable
         raise TileError(f"expected one of {list(WIRE_DTYPES)}, got {m['dtype']!r}", tile=where, field="dtype")
     dt = WIRE_DTYPES[m["dtype"]]

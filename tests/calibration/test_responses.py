@@ -112,7 +112,7 @@ def test_pd_agrees_with_a_fresh_independent_injected_set():
     too narrow: the fresh Pd itself must lie inside the model's interval in at least 80 % of
     the bins. (For a correctly calibrated 95 % interval this fraction is about 93 % with these
     sample sizes, the fresh set's own noise included; an interval half as wide as it should be
-    gives about 65 %. `tools/bench_calibration.py --agreement N` shows the spread over seeds.)
+    gives about 65 %. `tools/bench/calibration.py --agreement N` shows the spread over seeds.)
     A Pd target of 0.8 keeps Pd(r) away from 1, where the check has teeth."""
     from atr_node.calibration.stats import wilson_interval
 

@@ -11,14 +11,14 @@ TOOLS = Path(__file__).resolve().parents[2] / "tools"
 
 
 def _tool(name: str):
-    spec = importlib.util.spec_from_file_location(name, TOOLS / f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name.replace("/", "_"), TOOLS / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
 
 
 def test_bench_calibration_quick(capsys):
-    assert _tool("bench_calibration").main(["--quick"]) == 0
+    assert _tool("bench/calibration").main(["--quick"]) == 0
     out = capsys.readouterr().out
     assert "total" in out and "error against run time" in out
     rows = [line.split() for line in out.splitlines() if line.strip().split(" ")[0].isdigit()]

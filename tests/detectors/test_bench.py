@@ -1,4 +1,4 @@
-"""Smoke run of tools/bench_detectors.py: it runs, prints its tables, and its scipy.ndimage
+"""Smoke run of tools/bench/detectors.py score: it runs, prints its tables, and its scipy.ndimage
 reference (an independent implementation) agrees with score_maps (``--check``)."""
 
 from __future__ import annotations
@@ -7,11 +7,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench_detectors.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench" / "detectors.py"
 
 
 def test_bench_quick_runs_and_agrees_with_scipy():
-    res = subprocess.run([sys.executable, str(TOOL), "--quick", "--rows", "160", "--cols", "700", "--check"],
+    res = subprocess.run([sys.executable, str(TOOL), "score", "--quick", "--rows", "160", "--cols", "700", "--check"],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stdout + res.stderr
     for line in ("memory copy of the tile", "score_maps all four", "scipy.ndimage, all four",
@@ -20,5 +20,5 @@ def test_bench_quick_runs_and_agrees_with_scipy():
 
 
 def test_bench_help():
-    res = subprocess.run([sys.executable, str(TOOL), "--help"], capture_output=True, text=True, timeout=60)
+    res = subprocess.run([sys.executable, str(TOOL), "score", "--help"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and "--quick" in res.stdout

@@ -1,4 +1,4 @@
-"""Smoke run of tools/bench_extract.py: it runs, prints its table, and the previous
+"""Smoke run of tools/bench/detectors.py extract: it runs, prints its table, and the previous
 implementation it times (cv2 with statistics) gives the same detections as find_detections
 (``--check``)."""
 
@@ -8,11 +8,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench_extract.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench" / "detectors.py"
 
 
 def test_bench_extract_quick_runs_and_agrees_with_the_previous_code():
-    res = subprocess.run([sys.executable, str(TOOL), "--quick", "--rows", "200", "--cols", "600", "--check"],
+    res = subprocess.run([sys.executable, str(TOOL), "extract", "--quick", "--rows", "200", "--cols", "600", "--check"],
                          capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stdout + res.stderr
     for line in ("before ms/Mpx", "now ms/Mpx", "(mean per map)", "coverage bits of node.detect"):
@@ -23,7 +23,7 @@ def test_bench_extract_quick_runs_and_agrees_with_the_previous_code():
 
 
 def test_bench_extract_mission_mode_runs_and_agrees():
-    res = subprocess.run([sys.executable, str(TOOL), "--quick", "--rows", "64", "--cols", "300", "--repeat", "1",
+    res = subprocess.run([sys.executable, str(TOOL), "extract", "--quick", "--rows", "64", "--cols", "300", "--repeat", "1",
                           "--mission", "--mission-units", "1", "--check"],
                          capture_output=True, text=True, timeout=180)
     assert res.returncode == 0, res.stdout + res.stderr
@@ -32,5 +32,5 @@ def test_bench_extract_mission_mode_runs_and_agrees():
 
 
 def test_bench_extract_help():
-    res = subprocess.run([sys.executable, str(TOOL), "--help"], capture_output=True, text=True, timeout=60)
+    res = subprocess.run([sys.executable, str(TOOL), "extract", "--help"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and "--quick" in res.stdout

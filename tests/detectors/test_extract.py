@@ -199,8 +199,8 @@ def test_sizes_at_exactly_min_and_max_extent():
 def test_real_score_maps_match_the_reference(tau_scale):
     """Score maps of a Rayleigh tile with NaN nadir columns and planted targets, at the test
     thresholds (few components) and at 0.3 of them (many)."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
-    from bench_detectors import make_tile
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools" / "bench"))
+    from detectors import make_tile  # tools/bench/detectors.py
 
     img, truth = make_tile(256, 700, 5, T)
     maps = score_maps(img, template=T, detectors=S, **GEO)

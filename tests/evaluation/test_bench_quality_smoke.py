@@ -1,4 +1,4 @@
-"""Smoke test of the held-out quality benchmark (tools/bench_quality.py) on one tiny scene."""
+"""Smoke test of the held-out quality benchmark (tools/bench/quality.py) on one tiny scene."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import json
 import sys
 from pathlib import Path
 
-TOOLS = Path(__file__).resolve().parents[2] / "tools"
+TOOLS = Path(__file__).resolve().parents[2] / "tools" / "bench"
 sys.path.insert(0, str(TOOLS))
 
-import bench_quality  # noqa: E402
+import quality as bench_quality  # noqa: E402
 
 
 def test_quality_benchmark_scores_every_method_and_checks(tmp_path):

@@ -6,12 +6,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "speed_options.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench" / "quality.py"
 
 
 def test_speed_options_quick_prints_one_row_per_option(tmp_path):
     out = tmp_path / "rows.json"
-    r = subprocess.run([sys.executable, str(TOOL), "--quick", "--json", str(out)], capture_output=True, text=True,
+    r = subprocess.run([sys.executable, str(TOOL), "speed-options", "--quick", "--json", str(out)], capture_output=True, text=True,
                        timeout=600)
     assert r.returncode == 0, r.stderr
     rows = [line for line in r.stdout.splitlines() if line.startswith("| ") and not line.startswith("| option")]

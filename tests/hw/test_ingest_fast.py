@@ -24,8 +24,9 @@ from atr_node.records.nav import NavFix, make_fix
 from hw.can_nav import (CanNavDecoder, compile_message, encode_altitude, encode_attitude, encode_leg,
                         encode_position, encode_time, load_dbc)
 from hw.decode import NavDecoder
-from hw.nmea import (NmeaDecoder, NmeaReject, _fast_checksum, encode_dpt, encode_gga, encode_hdt, encode_rmc,
+from hw.nmea import (NmeaReject, _fast_checksum, encode_dpt, encode_gga, encode_hdt, encode_rmc,
                      encode_ths, encode_vtg, encode_zda, parse_sentence, split_sentence)
+from hw.nmea_decoder import NmeaDecoder
 
 # --- CAN ---------------------------------------------------------------------------------------
 
@@ -265,27 +266,13 @@ def test_bench_ingest_quick_smoke(capsys):
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[2] / "tools" / "bench_ingest.py"
+    path = Path(__file__).resolve().parents[2] / "tools" / "bench" / "ingest.py"
     spec = importlib.util.spec_from_file_location("bench_ingest", path)
     tool = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tool)
-    assert tool.main(["--quick", "--repeat", "1"]) == 0
+    assert tool.main(["nav", "--quick", "--repeat", "1"]) == 0
     out = capsys.readouterr().out
     names = [row[0] for row in tool.ROWS]
     assert names == ["atrlog read (nav)", "atrlog read (all)", "nmea decode", "can decode", "nav decode",
                      "read + nav decode", "navtrack add", "pipeline feed (nav)"]
     assert all(n > 0 and cpu > 0 for _, n, cpu in tool.ROWS) and "records/s" in out
-
-
-def test_ingest_ab_quick_smoke_against_this_tree(capsys):
-    """The A/B tool, with this tree as its own base: everything identical, exit 0."""
-    import importlib.util
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[2]
-    spec = importlib.util.spec_from_file_location("ingest_ab", root / "tools" / "ingest_ab.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
-    assert tool.main(["--base", str(root), "--quick", "--repeat", "1"]) == 0
-    out = capsys.readouterr().out
-    assert "results: IDENTICAL" in out and out.count("differences 0") == 6 and "pipeline feed (nav)" in out

@@ -16,7 +16,8 @@ import hw
 from atr_node.config import LinkSettings
 from hw.base import Link
 from hw.errors import LinkClosedError, LinkError, LinkSpecError
-from hw.nmea import NmeaDecoder, encode_dpt, encode_gga, encode_hdt
+from hw.nmea import encode_dpt, encode_gga, encode_hdt
+from hw.nmea_decoder import NmeaDecoder
 from hw.serial_nmea import SerialNmeaLink
 from hw.zmq_sonar import ZmqTileLink
 

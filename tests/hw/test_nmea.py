@@ -12,8 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hw.errors import NmeaError
-from hw.nmea import (KNOT_M_S, NmeaDecoder, NmeaReject, encode_dpt, encode_gga, encode_hdt, encode_rmc,
+from hw.nmea import (KNOT_M_S, NmeaReject, encode_dpt, encode_gga, encode_hdt, encode_rmc,
                      encode_ths, encode_vtg, encode_zda, format_sentence, parse_sentence)
+from hw.nmea_decoder import NmeaDecoder
 
 T0 = datetime(2014, 8, 1, tzinfo=timezone.utc).timestamp()
 

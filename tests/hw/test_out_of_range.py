@@ -15,7 +15,8 @@ from atr_node.io.atrlog import LogRecord
 from hw.can_link import CanLink
 from hw.can_nav import CanNavDecoder, encode_attitude, encode_position, encode_time
 from hw.decode import NavDecoder
-from hw.nmea import NmeaDecoder, encode_gga, format_sentence
+from hw.nmea import encode_gga, format_sentence
+from hw.nmea_decoder import NmeaDecoder
 
 
 def _drain(link, n):

@@ -16,7 +16,8 @@ from hw.can_link import CanLink
 from hw.can_nav import encode_altitude, encode_attitude, encode_leg, encode_position, encode_time
 from hw.decode import NavDecoder
 from hw.hil import CanBusOut, HilPlayer, PtyNmeaOut, ZmqTileOut
-from hw.nmea import NmeaDecoder, encode_dpt, encode_gga, encode_hdt, encode_zda
+from hw.nmea import encode_dpt, encode_gga, encode_hdt, encode_zda
+from hw.nmea_decoder import NmeaDecoder
 from hw.recorder import LinkMux, RecordingLink
 from hw.replay import Paced, ReplayLink, StampedNmeaLink, TimeMerge
 from hw.serial_nmea import SerialNmeaLink
@@ -220,7 +221,7 @@ def test_tools_smoke(mission_log, tmp_path, real_data, capsys):
     tools = Path(__file__).resolve().parents[2] / "tools"
 
     def load(name):
-        spec = importlib.util.spec_from_file_location(name, tools / f"{name}.py")
+        spec = importlib.util.spec_from_file_location(name.replace("/", "_"), tools / f"{name}.py")
         mod = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(mod)
         return mod
@@ -234,7 +235,7 @@ def test_tools_smoke(mission_log, tmp_path, real_data, capsys):
     assert load("hil_player").main([str(path), "--speed", "max", "--no-sonar", "--can-channel",
                                     f"smoke-{uuid.uuid4().hex}", "--max-records", "20"]) == 0
     assert "nmea_url" in capsys.readouterr().out
-    assert load("bench_links").main(["--quick", "--real-data", str(real_data)]) == 0
+    assert load("bench/ingest").main(["links", "--quick", "--real-data", str(real_data)]) == 0
     assert "| replay max |" in capsys.readouterr().out
 
 

@@ -1,4 +1,4 @@
-"""Smoke run of tools/bench_node.py (the node's throughput and latency benchmark): it runs end
+"""Smoke run of tools/bench/node.py replay (the node's throughput and latency benchmark): it runs end
 to end on small missions and its figures are consistent with each other."""
 
 from __future__ import annotations
@@ -8,12 +8,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench_node.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench" / "node.py"
 
 
 def test_bench_node_quick_reports_consistent_figures(tmp_path):
     out = tmp_path / "bench.json"
-    res = subprocess.run([sys.executable, str(TOOL), "--quick", "--runs", "2", "--interval-s", "0.5", "--json", str(out)],
+    res = subprocess.run([sys.executable, str(TOOL), "replay", "--quick", "--runs", "2", "--interval-s", "0.5", "--json", str(out)],
                          capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "end-to-end replay" in res.stdout and "latency" in res.stdout
@@ -30,5 +30,5 @@ def test_bench_node_quick_reports_consistent_figures(tmp_path):
 
 
 def test_bench_node_help():
-    res = subprocess.run([sys.executable, str(TOOL), "--help"], capture_output=True, text=True, timeout=60)
+    res = subprocess.run([sys.executable, str(TOOL), "replay", "--help"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and "--tp-swath-m" in res.stdout

@@ -17,8 +17,8 @@ from atr_node.config import DETECTOR_NAMES, DetectorSettings, TemplateSettings
 from atr_node.detectors import column_mean, column_median, find_detections, score_strip
 from atr_node.node.detect import DetectJob, detect
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools"))
-from bench_detectors import GEO, TAU, make_tile  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tools" / "bench"))
+from detectors import GEO, TAU, make_tile  # noqa: E402  (tools/bench/detectors.py)
 
 # SPEC 2's half-valid rule for every window, so the hole gives SMF (context window) a coverage
 # of its own, which the sharing test needs (with min_valid_fraction_zones the zones bind first)

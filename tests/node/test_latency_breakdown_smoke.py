@@ -1,4 +1,4 @@
-"""Smoke run of tools/latency_breakdown.py: the stage times of every unit add up to its latency."""
+"""Smoke run of tools/bench/node.py latency: the stage times of every unit add up to its latency."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ from pathlib import Path
 
 from atr_node.node.timing import STAGES
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "latency_breakdown.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench" / "node.py"
 
 
 def test_latency_breakdown_quick_stages_add_up(tmp_path):
     out = tmp_path / "stages.json"
-    res = subprocess.run([sys.executable, str(TOOL), "--quick", "--interval-s", "0.3", "--warm-up-s", "0.5",
+    res = subprocess.run([sys.executable, str(TOOL), "latency", "--quick", "--interval-s", "0.3", "--warm-up-s", "0.5",
                           "--json", str(out)], capture_output=True, text=True, timeout=240)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "median" in res.stdout and "heartbeat latency" in res.stdout

@@ -206,7 +206,7 @@ def test_belief_raster_matches_the_grid(live_node, tmp_path):
 def test_bench_tool_quick_smoke():
     from pathlib import Path
 
-    tool = Path(__file__).resolve().parents[2] / "tools" / "bench_operators.py"
+    tool = Path(__file__).resolve().parents[2] / "tools" / "bench" / "operators.py"
     r = subprocess.run([sys.executable, str(tool), "--quick", "--sizes", "20"], capture_output=True, text=True,
                        timeout=120)
     assert r.returncode == 0, r.stderr

@@ -2,7 +2,7 @@
 nav jump inside a tile, disk full while snapshotting and recording. Real sockets, real files
 and a real (small) tmpfs. The serial link that drops and comes back is in
 ``tests/hw/test_links.py::test_socket_url_reconnects_after_the_server_drops``; SIGKILL at
-random points is in ``test_kill_soak.py`` (and ``tools/kill_restart.py`` for many)."""
+random points is in ``test_kill_soak.py`` (and ``tools/soak/kill_restart.py`` for many)."""
 
 from __future__ import annotations
 
@@ -190,7 +190,7 @@ def tmpfs(path: Path, size: str):
     path.mkdir(parents=True, exist_ok=True)
     r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)], capture_output=True, text=True)
     if r.returncode != 0:
-        pytest.skip(f"cannot mount a small tmpfs here ({r.stderr.strip()}); tools/kill_restart.py needs none")
+        pytest.skip(f"cannot mount a small tmpfs here ({r.stderr.strip()}); tools/soak/kill_restart.py needs none")
     try:
         yield path
     finally:

@@ -1,5 +1,5 @@
 """Fuzzing of every parser that sees outside data (issue 10): Hypothesis properties here with a
-modest number of examples, the mutation fuzzer ``tools/fuzz_parsers.py`` on a short run, and
+modest number of examples, the mutation fuzzer ``tools/fuzz.py`` on a short run, and
 the inputs it found that crashed a parser before the fixes, kept as regressions."""
 
 from __future__ import annotations
@@ -21,11 +21,12 @@ from atr_node.io.atrlog import AtrLogReader, AtrLogWriter, LogRecord, check_reco
 from atr_node.node.pipeline import Pipeline
 from atr_node.records.tile import REQUIRED_KEYS, Tile
 from hw.decode import NavDecoder
-from hw.nmea import NmeaDecoder, checksum
+from hw.nmea import checksum
+from hw.nmea_decoder import NmeaDecoder
 
 from .conftest import load_tool
 
-fz = load_tool("fuzz_parsers")
+fz = load_tool("fuzz")
 TILE_SEEDS = fz._tile_seeds()
 FEW = settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
@@ -265,3 +266,25 @@ def test_regression_a_slant_tile_far_out_is_not_blown_up_into_a_huge_ground_tile
         assert pipe.stats.pixels == 0
     finally:
         pipe.close()
+
+
+def test_config_not_utf8_is_a_config_error(tmp_path):
+    """Found by atheris (tools/fuzz.py --engine atheris): a config file that is not UTF-8 raised
+    UnicodeDecodeError from tomllib instead of a ConfigError naming the file."""
+    path = tmp_path / "bad.toml"
+    path.write_bytes(b"[detectors]\nenabled = [\"mf\", \"z\"]\n[detec\x92\x90\x00tors]\n")
+    with pytest.raises(ConfigError, match="not UTF-8") as ei:
+        load_settings(path)
+    assert str(path) in str(ei.value)
+
+
+def test_atheris_engine_smoke(tmp_path):
+    """The coverage-guided engine, where atheris is installed (optional: not in the test extras)."""
+    pytest.importorskip("atheris")
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, str(fz.__file__), "--engine", "atheris", "--parsers", "nmea,config",
+                        "--inputs", "200", "--crash-dir", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr[-3000:]
+    assert r.stdout.count("no finding") == 2

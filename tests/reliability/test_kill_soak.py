@@ -1,5 +1,5 @@
-"""Smoke runs of the long tools: SIGKILL at random points then restart (``tools/kill_restart.py``)
-and the soak (``tools/soak.py``). The long runs and their figures are in docs/reliability.md."""
+"""Smoke runs of the long tools: SIGKILL at random points then restart (``tools/soak/kill_restart.py``)
+and the soak (``tools/soak/soak.py``). The long runs and their figures are in docs/reliability.md."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Smoke run of tools/bench_batch.py (the figures themselves are measured by the tool, not tested)."""
+"""Smoke run of tools/bench/batch.py (the figures themselves are measured by the tool, not tested)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench_batch.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "bench" / "batch.py"
 
 
 def test_bench_batch_quick_runs_and_finds_identical_contacts():

@@ -18,7 +18,7 @@ from atr_node.simulation.mission import altitude_at, generate_mission
 from atr_node.simulation.world import plan_world
 from atr_node.simulation.seabed import gain_curve
 from hw.can_nav import CanNavDecoder
-from hw.nmea import NmeaDecoder
+from hw.nmea_decoder import NmeaDecoder
 
 
 def small(**kw) -> Settings:

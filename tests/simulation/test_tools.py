@@ -9,7 +9,7 @@ TOOLS = Path(__file__).resolve().parents[2] / "tools"
 
 
 def load(name: str):
-    spec = importlib.util.spec_from_file_location(name, TOOLS / f"{name}.py")
+    spec = importlib.util.spec_from_file_location(name.replace("/", "_"), TOOLS / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -17,12 +17,12 @@ def load(name: str):
 
 def test_gallery_quick(tmp_path, capsys):
     out = tmp_path / "g.png"
-    assert load("gallery_signatures").main(["--quick", "--out", str(out)]) == 0
+    assert load("figures/gallery_signatures").main(["--quick", "--out", str(out)]) == 0
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10000
 
 
 def test_bench_quick(capsys):
-    assert load("bench_simulation").main(["--quick"]) == 0
+    assert load("bench/simulation").main(["--quick"]) == 0
     text = capsys.readouterr().out
     assert "whole signature" in text and "mission generation" in text
     # the k = 8 row is the reference: zero error against itself

@@ -1,4 +1,4 @@
-"""Smoke tests of tools/xtf_mosaic.py and tools/xtf_bench.py on the real recording."""
+"""Smoke tests of tools/figures/xtf_mosaic.py and tools/bench/ingest.py xtf on the real recording."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "xtf_mosaic.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "figures" / "xtf_mosaic.py"
 
 
 @pytest.mark.parametrize("altitude", ["altimeter", "sonar"])
@@ -33,8 +33,8 @@ def test_mosaic_png_and_table(iver2, real_data, tmp_path, altitude):
 
 
 def test_bench_quick_prints_its_table(iver2):
-    bench = TOOL.parent / "xtf_bench.py"
-    res = subprocess.run([sys.executable, str(bench), str(iver2), "--quick"], capture_output=True, text=True,
+    bench = TOOL.parents[1] / "bench" / "ingest.py"
+    res = subprocess.run([sys.executable, str(bench), "xtf", str(iver2), "--quick"], capture_output=True, text=True,
                          timeout=120)
     assert res.returncode == 0, res.stderr
     rows = [line.split()[0] for line in res.stdout.splitlines()[2:]]

@@ -10,7 +10,7 @@ import numpy as np
 from pyxtf import XTFHeaderType, xtf_read
 
 from atr_node.io.xtf import XtfReader
-from hw.nmea import NmeaDecoder
+from hw.nmea_decoder import NmeaDecoder
 
 
 def _reference(path):

@@ -12,7 +12,8 @@ from pyxtf import XTFHeaderType, xtf_read
 from atr_node.io.xtf import XtfReader, XtfStats, iter_xtf_records
 from atr_node.records.nav import NavTrack, _haversine_m
 from atr_node.records.tile import Tile
-from hw.nmea import NmeaDecoder, parse_sentence
+from hw.nmea import parse_sentence
+from hw.nmea_decoder import NmeaDecoder
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Smoke test of ``tools/real_recordings.py``: the node on a shared real file, its contacts
+"""Smoke test of ``tools/figures/real_recordings.py``: the node on a shared real file, its contacts
 mapped back onto the recorded waterfall and drawn (the docs figures come from this tool)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-TOOL = Path(__file__).resolve().parents[2] / "tools" / "real_recordings.py"
+TOOL = Path(__file__).resolve().parents[2] / "tools" / "figures" / "real_recordings.py"
 
 
 def test_the_tool_places_every_contact_and_draws_the_waterfall(real_data, tmp_path):

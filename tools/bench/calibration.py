@@ -13,9 +13,9 @@
    second, independent 2000-signature run (other seed, other image of the same seabed), so
    the 2000 row shows the run-to-run spread, not zero.
 
-    python tools/bench_calibration.py            # full: about 2 x 20-40 s
-    python tools/bench_calibration.py --quick    # small image, 200 signatures
-    python tools/bench_calibration.py --agreement 10   # + Pd agreement over 10 seeds (slow)
+    python tools/bench/calibration.py            # full: about 2 x 20-40 s
+    python tools/bench/calibration.py --quick    # small image, 200 signatures
+    python tools/bench/calibration.py --agreement 10   # + Pd agreement over 10 seeds (slow)
 
 3. With ``--agreement N``: the done criterion "estimated Pd(r) agrees with the Pd of a fresh,
    independent injected set within the Wilson interval in >= 90 % of range bins", repeated
@@ -37,6 +37,9 @@ from atr_node.calibration.responses import collect_responses
 from atr_node.calibration.sources import synthetic_images
 from atr_node.calibration.stats import wilson_interval
 from atr_node.config import load_settings
+from pathlib import Path  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import harness  # noqa: E402  (tools/bench/harness.py: repeats, warm-up, statistics, JSON)
 
 
 def run_once(settings, *, rows, cols, iterations, targets, seed, seabed):
@@ -48,6 +51,9 @@ def run_once(settings, *, rows, cols, iterations, targets, seed, seabed):
     t0 = time.perf_counter()
     model = estimate_model(resp, calibration=settings.calibration, thresholds=settings.detectors.threshold)
     t_est = time.perf_counter() - t0
+    harness.record(f"calibration: collect {iterations} x {targets} signatures, seed {seed}", [t_collect], clock="wall",
+                   work=iterations * targets, work_unit="signatures")
+    harness.record(f"calibration: estimate the model, seed {seed}", [t_est], clock="wall")
     return resp, model, np.asarray(stamps) - stamps[0], t_collect, t_est
 
 
@@ -148,5 +154,6 @@ def agreement(settings, n_seeds: int, seabed: str) -> None:
           f"mean overlap {f[:, 1].mean():.3f} (>= 0.9 in {np.sum(f[:, 1] >= 0.9)} of {len(f)} seeds)")
 
 
+
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

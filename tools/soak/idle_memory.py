@@ -9,8 +9,8 @@ tile slots) count in each process; the total PSS (``smaps_rollup``) counts them 
 
 Examples
 --------
-    python tools/idle_memory.py                       # the default warm-up (8 Mpx) and none
-    python tools/idle_memory.py --warm-up-mpx 8 2 0.05 0 --json idle.json
+    python tools/soak/idle_memory.py                       # the default warm-up (8 Mpx) and none
+    python tools/soak/idle_memory.py --warm-up-mpx 8 2 0.05 0 --json idle.json
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _free_port() -> int:

@@ -12,14 +12,19 @@ and prints a table of wall time, map and reduce time, tiles, deltas and contacts
 that the two runs wrote identical contacts. The figures of a shared machine are indicative
 only: rerun on a quiet one.
 
-    python tools/bench_batch.py                 # 8 missions, 2 workers
-    python tools/bench_batch.py --quick         # 2 tiny missions (smoke run)
-    python tools/bench_batch.py --missions 16 --workers 4 --keep /tmp/missions
+    python tools/bench/batch.py                 # 8 missions, 2 workers
+    python tools/bench/batch.py --quick         # 2 tiny missions (smoke run)
+    python tools/bench/batch.py --missions 16 --workers 4 --keep /tmp/missions
 """
 
 from __future__ import annotations
 
 import os
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import harness  # noqa: E402  (tools/bench/harness.py: repeats, warm-up, statistics, JSON)
 
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")  # one core per worker: no hidden BLAS threads
@@ -60,6 +65,8 @@ def run_batch(cfg: Path, logs: list[Path], out: Path, extra: list[str]) -> dict:
     t0 = time.perf_counter()
     r = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - t0
+    harness.record(f"atr-node batch {' '.join(extra)}, {len(logs)} missions (one process)", [wall], clock="wall",
+                   work=len(logs), work_unit="missions")
     if r.returncode != 0:
         raise SystemExit(f"batch failed ({' '.join(cmd)}):\n{r.stderr}")
     s = json.loads(summary.read_text())
@@ -107,5 +114,6 @@ def main(argv: list[str] | None = None) -> int:
     return 0 if same else 1
 
 
+
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

@@ -11,7 +11,7 @@ JSON lines with ``lat_deg``/``lon_deg`` as ``atr-node replay --contacts-out`` wr
 It prints a table of where each hit lands: slant and ground range, position, and the distance
 to every surveyed point and to each survey's centroid.
 
-    python tools/xtf_mosaic.py ../shared/data/real/xtf/scotsman-iver2.xtf --out mosaic.png \\
+    python tools/figures/xtf_mosaic.py ../shared/data/real/xtf/scotsman-iver2.xtf --out mosaic.png \\
         --survey ../shared/data/real/xtf/ScotsmanLongitudeLatitudeCaris.csv \\
         --survey ../shared/data/real/xtf/ScotsmanLongitudeLatitudeOpenSidescan2020-03-18.csv
 """
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from atr_node.geo import MissionFrame, tile_geometry  # noqa: E402
 from atr_node.io.xtf import XtfReader  # noqa: E402

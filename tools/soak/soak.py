@@ -16,9 +16,9 @@ mission's duration).
 
 Examples::
 
-    python tools/soak.py --quick                          # 2 short legs, seconds
-    python tools/soak.py                                  # 24 legs of 300 m, about 1000 tiles
-    python tools/soak.py --legs 80 --leg-length-m 500 --json soak.json
+    python tools/soak/soak.py --quick                          # 2 short legs, seconds
+    python tools/soak/soak.py                                  # 24 legs of 300 m, about 1000 tiles
+    python tools/soak/soak.py --legs 80 --leg-length-m 500 --json soak.json
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 

@@ -8,7 +8,7 @@
    relative error of the echo total), with the time per trace.
 3. Mission generation: the default demo mission (``--quick``: a 2-leg mission).
 
-    python tools/bench_simulation.py [--quick] [--seed 0]
+    python tools/bench/simulation.py [--quick] [--seed 0]
 
 OpenCV runs on one thread (``cv2.setNumThreads(1)``); the tracer is numpy element-wise work,
 where BLAS threads play no part. Figures taken on a shared machine are indicative only.
@@ -31,6 +31,9 @@ from atr_node.simulation.meshes import builtin_mesh, place
 from atr_node.simulation.mission import generate_mission
 from atr_node.simulation.raytrace import trace
 from atr_node.simulation.seabed import seabed_pixels
+from pathlib import Path  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import harness  # noqa: E402  (tools/bench/harness.py: repeats, warm-up, statistics, JSON)
 
 H, DR, DX = 14.0, 0.1, 0.1
 SHAPES = ("cylinder", "cone", "wedge")
@@ -59,13 +62,17 @@ def bench_signatures(rng: np.random.Generator, n: int) -> tuple[tuple[float, flo
     for m in placed:
         trace(m, range0_m=0.0, dr_m=DR, dx_m=DX, rows=rows, cols=cols, altitude_m=H, subrays=2)
     r_trace = _rate(n, t0)
+    harness.record(f"ray trace, {n} signatures", [n / r_trace[1]], clock="process", work=n, work_unit="signatures")
     host = seabed_pixels(rows=rows, cols=cols, range0_m=0.0, dr_m=DR, altitude_m=H, rng=rng)
     g = np.ones(cols)
     t0 = _clock()
     for s, r, h in cases:
         inject_targets(host, range0_m=0.0, dr_m=DR, dx_m=DX, altitude_m=H, rng=rng, g=g,
                        placements=[Placement(s, row=32.0, range_m=r, heading_deg=h, mesh=meshes[s])])
-    return r_trace, _rate(n, t0)
+    r_whole = _rate(n, t0)
+    harness.record(f"whole signature (inject_targets), {n}", [n / r_whole[1]], clock="process", work=n,
+                   work_unit="signatures")
+    return r_trace, r_whole
 
 
 def bench_subrays(rng: np.random.Generator, n: int, reps: int) -> list[tuple[int, float, float, float]]:
@@ -86,6 +93,7 @@ def bench_subrays(rng: np.random.Generator, n: int, reps: int) -> list[tuple[int
         for _ in range(reps):
             sigs = [trace(m, subrays=k, **kw) for m in cases]
         dt = (time.process_time() - t0) / (reps * n)
+        harness.record(f"trace, {k} x {k} sub-rays (per signature)", [dt], clock="process")
         e_sh, e_ec = [], []
         for sig, (rps, rec) in zip(sigs, ref):
             ps, ec = full(sig)
@@ -103,6 +111,7 @@ def bench_mission(quick: bool, seed: int) -> tuple[str, float, int]:
         t0 = time.perf_counter()
         f = generate_mission(s, d, seed=seed)
         dt = time.perf_counter() - t0
+    harness.record("mission generation", [dt], clock="wall", work=f.records, work_unit="records")
     sim = s.simulation
     what = (f"{sim.mission_legs} legs x {sim.mission_leg_length_m:.0f} m, swath {sim.mission_swath_m:.0f} m/side, "
             f"{f.targets} targets, {f.clutter_objects} rocks, {f.tiles} tiles")
@@ -134,5 +143,6 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

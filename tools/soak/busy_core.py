@@ -8,8 +8,8 @@ without running its trap does not leave the load behind for long.
 
 Examples
 --------
-    python tools/busy_core.py --max-s 60        # one core busy for a minute
-    python tools/busy_core.py &                 # in a script; kill it when done
+    python tools/soak/busy_core.py --max-s 60        # one core busy for a minute
+    python tools/soak/busy_core.py &                 # in a script; kill it when done
 """
 
 from __future__ import annotations

@@ -15,9 +15,9 @@ whose final contacts equal the reference.
 
 Examples::
 
-    python tools/kill_restart.py --quick                  # 3 kills on a 2-leg mission
-    python tools/kill_restart.py --kills 100 --legs 3     # about 10 minutes on 2 loaded cores
-    python tools/kill_restart.py --log m.atrlog --config m.toml --kills 50
+    python tools/soak/kill_restart.py --quick                  # 3 kills on a 2-leg mission
+    python tools/soak/kill_restart.py --kills 100 --legs 3     # about 10 minutes on 2 loaded cores
+    python tools/soak/kill_restart.py --log m.atrlog --config m.toml --kills 50
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 

@@ -5,7 +5,7 @@ synthetic K-distributed seabed (default settings: 120 kHz SAS, 14 m altitude, 10
 displayed in dB over 40 dB with the sonar on the left (range increases to the right). The
 truth anchor (echo/shadow boundary) is marked with a small cross.
 
-    python tools/gallery_signatures.py --out gallery.png [--quick] [--seabed sand] [--heading 30]
+    python tools/figures/gallery_signatures.py --out gallery.png [--quick] [--seabed sand] [--heading 30]
 """
 
 from __future__ import annotations

@@ -10,9 +10,9 @@ altitude the node used and the objects read by eye, as ``docs/real_<file>.png``.
 table per file: tiles, contacts, where they lie, contacts without detection, and the objects
 read by eye found within 3 m (ICD section 5's match radius).
 
-    python tools/real_recordings.py                  # both shared files, figures into docs/
-    python tools/real_recordings.py --out /tmp/figs  # elsewhere
-    python tools/real_recordings.py FILE.xtf -- --online-calibration off
+    python tools/figures/real_recordings.py                  # both shared files, figures into docs/
+    python tools/figures/real_recordings.py --out /tmp/figs  # elsewhere
+    python tools/figures/real_recordings.py FILE.xtf -- --online-calibration off
 
 Exit codes: 0 ok, 1 a file could not be replayed, 2 usage.
 """
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from atr_node.config import load_settings  # noqa: E402
