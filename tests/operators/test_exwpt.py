@@ -189,7 +189,7 @@ def test_exwpt_command_from_a_live_node_into_a_pty(live_node):
         node.join()
         _, err = proc.communicate(timeout=60)
         assert proc.returncode == 0, err
-        deadline = time.monotonic() + 5
+        deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
         expected = [m for m in node.emitted if m["state"] != "withdrawn"]
         while len(lines) < len(expected) and time.monotonic() < deadline:
             time.sleep(0.05)

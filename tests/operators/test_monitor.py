@@ -37,7 +37,7 @@ def heartbeat(tiles_in=12, mode="nominal"):
 def pub_and_follower():
     pub = Publisher("tcp://127.0.0.1:*")
     fol = NodeFollower(pub.endpoint)
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
     while fol.heartbeat is None and time.monotonic() < deadline:  # slow joiner: until one arrives
         pub.heartbeat(heartbeat(tiles_in=0))
         fol.poll(0.05)
@@ -48,7 +48,7 @@ def pub_and_follower():
 
 
 def drain(fol, n_expected):
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
     n = 0
     while n < n_expected and time.monotonic() < deadline:
         if fol.poll(0.1) is not None or fol.stats.bad:
@@ -92,7 +92,7 @@ def test_bad_messages_are_counted_and_change_nothing(pub_and_follower):
     broken = dict(contact(5, bel=0.95), pl=0.5)
     bad = [[b"contact", b"\xc1"], [b"weird", msgpack.packb({})], [b"contact", b"x", b"y"],
            [b"contact", msgpack.packb(broken)], [b"heartbeat", msgpack.packb({"type": "heartbeat"})]]
-    deadline = time.monotonic() + 10
+    deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
     while fol.stats.bad < len(bad) and time.monotonic() < deadline:  # resend until joined
         if fol.stats.bad == 0:
             for frames in bad:
@@ -231,7 +231,7 @@ def test_following_a_curve_secured_node(tmp_path):
     good = NodeFollower(pub.endpoint, curve=curve_from_args(args))
     plain = NodeFollower(pub.endpoint)
     try:
-        deadline = time.monotonic() + 10
+        deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
         while good.heartbeat is None and time.monotonic() < deadline:
             pub.heartbeat(heartbeat())
             good.poll(0.05)
