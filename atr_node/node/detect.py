@@ -104,18 +104,22 @@ def detect(job: DetectJob, workspace: Workspace | None = None) -> DetectResult:
         return group_detections(found, objects, core_start=job.core[0], core_rows=shape[0], range0_m=job.range0_m,
                                 dr_m=job.dr_m, min_extent_m=ds.min_extent_m, max_extent_m=ds.max_extent_m)
 
+    joints: dict = {}  # one window read per place and detector, whichever detector found it
     for d in job.enabled:
-        dets[d] = with_joint(grouped(raw[d, None]), scores, job)
+        dets[d] = with_joint(grouped(raw[d, None]), scores, job, joints)
         if sweep is not None:
             sweep[d] = {float(tau): grouped(raw[d, tau]) for tau in job.sweep.get(d, ())}
     return DetectResult(job.key, shape, covered, dets, time.perf_counter() - t0, sweep)
 
 
-def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: DetectJob) -> list[Detection]:
+def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: DetectJob,
+               cache: dict[tuple, tuple] | None = None) -> list[Detection]:
     """``found`` with each detection's joint responses (SPEC 6.1): per enabled detector the
     maximum of its score over the template window of the detection's anchor (rows
     ``[i + row0, i + row0 + L)``, columns ``[j - W, j + S(j))``), the window the calibration
-    measures injected targets on (``calibration.responses.window_max``)."""
+    measures injected targets on (``calibration.responses.window_max``). ``cache`` (shared by
+    the calls of one unit) holds the window geometry and the joints already read, keyed by
+    place: detections of several detectors on one object read its windows once."""
     if not found:
         return found
     import dataclasses
@@ -123,11 +127,19 @@ def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: Detec
     from ..calibration.responses import window_max
     from ..detectors.windows import window_geometry
 
+    cache = {} if cache is None else cache
     cols = job.pixels.shape[1]
-    ranges = job.range0_m + job.dr_m * np.arange(cols, dtype=np.float64)
-    geom = window_geometry(ranges, template=job.template, dr_m=job.dr_m, dx_m=job.dx_m, altitude_m=job.altitude_m)
+    if "geometry" not in cache:
+        ranges = job.range0_m + job.dr_m * np.arange(cols, dtype=np.float64)
+        cache["geometry"] = window_geometry(ranges, template=job.template, dr_m=job.dr_m, dx_m=job.dx_m,
+                                            altitude_m=job.altitude_m)
+    geom = cache["geometry"]
     out = []
     for x in found:
+        key = (int(x.row), int(x.col), x.length_m)
+        if key in cache:
+            out.append(dataclasses.replace(x, joint=cache[key]))
+            continue
         j = min(max(int(x.col), 0), cols - 1)
         if x.length_m is not None:
             # an extended object (a wreck): its anchor is the object's centre, where the
@@ -141,6 +153,7 @@ def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: Detec
             joint = tuple((d, window_max(scores[d], int(x.row), int(x.col), row0=geom.row0,
                                          length_px=geom.length_px, echo_px=geom.echo_px,
                                          shadow_px=int(geom.shadow_px[j]))) for d in job.enabled)
+        cache[key] = joint
         out.append(dataclasses.replace(x, joint=joint))
     return out
 

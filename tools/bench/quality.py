@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import harness  # noqa: E402  (tools/bench/harness.py: repeats, warm-up, statistics, JSON)
 
@@ -71,13 +72,17 @@ def _read_points(path: Path, frame) -> tuple[np.ndarray, list[dict]]:
     return np.column_stack(frame.to_frame(lat, lon)), rows
 
 
-def _near(points: np.ndarray, contacts, radius_m: float = 3.0, bel: float = 0.0) -> np.ndarray:
-    """Per point, whether some contact with Bel >= ``bel`` lies within ``radius_m``."""
-    c = np.array([(x.east_m, x.north_m) for x in contacts if x.bel >= bel]).reshape(-1, 2)
-    if not len(points) or not len(c):
+def _near(points: np.ndarray, others: np.ndarray, radius_m: float = 3.0) -> np.ndarray:
+    """Per point (n, 2), whether some of ``others`` (k, 2) lies within ``radius_m``."""
+    others = np.asarray(others, dtype=np.float64).reshape(-1, 2)
+    if not len(points) or not len(others):
         return np.zeros(len(points), dtype=bool)
-    d = np.hypot(points[:, None, 0] - c[None, :, 0], points[:, None, 1] - c[None, :, 1])
-    return d.min(axis=1) <= radius_m
+    return cKDTree(others).query(np.asarray(points, dtype=np.float64).reshape(-1, 2),
+                                 distance_upper_bound=radius_m)[0] <= radius_m
+
+
+def _en(contacts) -> np.ndarray:
+    return np.array([(c.east_m, c.north_m) for c in contacts], dtype=np.float64).reshape(-1, 2)
 
 
 def _reliability(contacts, truth_en: np.ndarray) -> list[dict]:
@@ -85,10 +90,8 @@ def _reliability(contacts, truth_en: np.ndarray) -> list[dict]:
     own: several contacts on one target all count as on a target)."""
     if not contacts:
         return []
-    c = np.array([(x.east_m, x.north_m) for x in contacts])
     bel = np.array([x.bel for x in contacts])
-    on = _near(c, [type("P", (), {"east_m": e, "north_m": n, "bel": 1.0})() for e, n in truth_en]) \
-        if len(truth_en) else np.zeros(len(c), dtype=bool)
+    on = _near(_en(contacts), truth_en)
     rows = []
     for lo, hi in zip(BEL_BINS[:-1], BEL_BINS[1:]):
         k = (bel >= lo) & (bel < hi)
@@ -133,7 +136,7 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
         contacts, grid = fuse(run, en, **kw)
         curve = comp._roc(name, contacts)
         at_node = [c for c in node_like_contacts(run, grid) if c.bel >= report]
-        op = operating_point(name, np.array([(c.east_m, c.north_m) for c in at_node]).reshape(-1, 2), comp.truth_en)
+        op = operating_point(name, _en(at_node), comp.truth_en)
         p = op.points[0]
         fig = _curve_figures(curve)
         fig.update({"op_pd": round(p.pd, 3), "op_fa": p.false_alarms,
@@ -141,9 +144,9 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
                     "share_bel_999": round(float(np.mean([c.bel >= 0.999 for c in at_node])) if at_node else 0.0, 3),
                     "reliability": _reliability(contacts, comp.truth_en),
                     "one_leg_objects": int(len(one_leg)),
-                    "one_leg_above_report": int(_near(one_leg, at_node).sum()),
+                    "one_leg_above_report": int(_near(one_leg, _en(at_node)).sum()),
                     "multi_look_targets": int(multi.sum()),
-                    "multi_look_above_report": int(_near(t_en[multi], at_node).sum()) if multi.any() else 0,
+                    "multi_look_above_report": int(_near(t_en[multi], _en(at_node)).sum()),
                     "no_detection": int(sum(1 for c in node_like_contacts(run, grid) if c.detections == 0))})
         out["methods"][name] = fig
     recs = [r for d in en for r in _records(run, d, None)]
