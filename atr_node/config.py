@@ -14,6 +14,7 @@ Sections may be given partly: missing keys keep their defaults. A file may also 
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import tomllib
 import types
@@ -134,7 +135,12 @@ class DetectorSettings:
     enabled: tuple[str, ...] = DETECTOR_NAMES
     threshold: ThresholdSettings = field(default_factory=ThresholdSettings)
     background_forgetting: float = 0.8
-    """Weight of the past in the per-range background b(j) tracked over a leg's tiles."""
+    """Replaced by ``background_memory_m`` (issue 21: forgetting per tile made the background
+    depend on tile sizes); a config that sets another value is refused with that message."""
+    background_memory_m: float = 115.0
+    """e-folding length along track of the background b(j) and median m(j) tracked over a leg:
+    each ping forgets ``exp(-dx / memory)`` of the past, whatever the tile sizes (115 m: the
+    0.8 per 256-ping tile at 0.1 m spacing it replaces)."""
     min_valid_fraction: float = 0.5
     """A window with fewer valid pixels than this scores NaN (SPEC 2; the SMF's context window)."""
     min_valid_fraction_zones: float = 0.75
@@ -166,7 +172,10 @@ class DetectorSettings:
         bad = [d for d in self.enabled if d not in DETECTOR_NAMES]
         _check(not bad, "detectors.enabled", f"unknown detector(s) {bad}; expected some of {list(DETECTOR_NAMES)}")
         _check(len(set(self.enabled)) == len(self.enabled), "detectors.enabled", "lists a detector twice")
-        _check(0.0 <= self.background_forgetting < 1.0, "detectors.background_forgetting", "must be in [0, 1)")
+        _check(self.background_forgetting == 0.8, "detectors.background_forgetting",
+               "is replaced by detectors.background_memory_m (metres along track, per ping)")
+        _check(math.isfinite(self.background_memory_m) and self.background_memory_m > 0,
+               "detectors.background_memory_m", "must be finite and > 0")
         _check(0.0 < self.min_valid_fraction <= 1.0, "detectors.min_valid_fraction", "must be in (0, 1]")
         _check(0.0 < self.min_valid_fraction_zones <= 1.0, "detectors.min_valid_fraction_zones",
                "must be in (0, 1]")
@@ -441,6 +450,16 @@ class NodeSettings:
     """Tiles whose pings are farther than this from any INS fix are held, not georeferenced."""
     tile_margin_m: float = 0.0
     """Extra margin around tiles beyond half the largest window (0 = just that)."""
+    unit_length_m: float = 25.6
+    """Along-track length of the units the strips are scored in, counted from each strip's
+    first ping whatever the tile cut (SPEC section 0: contacts must not depend on it). Longer:
+    less margin overhead (two margins of 3 m per unit by default); shorter: less latency
+    (a ping's evidence waits for up to this plus one margin of pings)."""
+    first_unit_length_m: float = 51.2
+    """Along-track length of a strip's first unit (at least ``unit_length_m``): the background
+    b(j) and median m(j) that score it are made of its own pings only, and 25.6 m of seabed is
+    too few where one object fills much of it (a wreck then raises its own background). Costs
+    latency at the start of each strip only."""
     node_id: str = ""
     """This node's id in evidence exchange (unique among exchanging nodes); "" = the host name."""
     exchange_publish: str = ""
@@ -463,6 +482,13 @@ class NodeSettings:
     there made the worst tile latency longer: both sides of a ping then score and fuse in
     series)."""
 
+    max_tile_pixels: int = 1 << 23
+    """Largest tile (rows x cols, after a slant tile's conversion to ground range) the node takes:
+    beyond it the tile is refused, counted under ``tile field shape`` (or the nav merge's ``slant
+    range axis too long``), before its pixels are converted. Detection and fusion take about
+    225 MiB plus 80 B per pixel of the largest tile (``docs/reliability.md``, memory budget): the
+    default 8 Mpx (2^23) peaks near 0.9 GiB, within the node's 2 GiB budget with room for the
+    evidence grid; the wire format's own limit is 2^28."""
     live_main_scores: bool = True
     """Live mode: while the worker scores one unit, the next ones wait in the main process,
     which scores them itself whenever it is idle: the second side of a ping no longer waits
@@ -482,6 +508,10 @@ class NodeSettings:
         _check(0.05 <= self.heartbeat_s <= 1.0, "node.heartbeat_s", "must be in [0.05, 1] s (ICD: at least once a second)")
         _check(self.snapshot_every_tiles >= 1, "node.snapshot_every_tiles", "must be >= 1")
         _check(self.nav_max_gap_s > 0, "node.nav_max_gap_s", "must be > 0")
+        _check(math.isfinite(self.unit_length_m) and self.unit_length_m > 0, "node.unit_length_m",
+               "must be finite and > 0")
+        _check(math.isfinite(self.first_unit_length_m) and self.first_unit_length_m >= self.unit_length_m,
+               "node.first_unit_length_m", "must be finite and >= node.unit_length_m")
         _check(0 <= self.warm_up_mpx <= 64, "node.warm_up_mpx", "must be in [0, 64] Mpx")
         _check(isinstance(self.max_tile_pixels, int) and 1 <= self.max_tile_pixels <= 1 << 28,
                "node.max_tile_pixels", "must be an integer in [1, 2^28]")

@@ -36,7 +36,11 @@ log = logging.getLogger(__name__)
 
 LINKS = ("sonar", "nmea", "can")
 READ_SIZE = 1 << 20
-MAX_BUFFER = 1 << 30  # a record may hold a large tile
+MAX_RECORD_BYTES = 1 << 27
+"""Largest record :class:`AtrLogReader` decodes by default (128 MiB: a tile of 2^23 float64
+pixels, the node's ``node.max_tile_pixels``, takes 64 MiB). A longer record (a 1 GB NMEA line)
+is skipped by its frame's length, read from its headers, without being loaded: memory stays
+bounded whatever the file holds."""
 MAX_ERRORS = 100  # messages kept in AtrLogReader.errors; the rest are only counted
 SCAN_SIZE = 1 << 20  # bytes searched at a time for the next record after garbage
 RESYNC_WINDOW_S = 86400.0  # a record found after garbage this far from the last good t needs a second
@@ -55,6 +59,7 @@ _HEAD_MAX = 9
 UNDECODABLE_STR = "undecodable str"
 UNHASHABLE_KEY = "unhashable key"
 GARBAGE = "garbage skipped"
+TOO_LONG = "record too long"
 CHECK_REASONS = ("missing key", "bad t", "bad link", "bad msg")  # of check_record, by _reason
 
 
@@ -149,7 +154,7 @@ class AtrLogReader:
         Records rejected plus blocks of garbage skipped (one per block).
     reasons
         ``rejected`` by reason: ``undecodable str``, ``unhashable key``, ``bad t``,
-        ``bad link``, ``bad msg``, ``missing key``, ``garbage skipped``.
+        ``bad link``, ``bad msg``, ``missing key``, ``record too long``, ``garbage skipped``.
     skipped_bytes
         Bytes inside the skipped garbage blocks.
     truncated
@@ -167,6 +172,8 @@ class AtrLogReader:
     skipped_bytes: int = 0
     errors: list[str] = field(default_factory=list)
     reasons: Counter = field(default_factory=Counter)
+    max_record_bytes: int = MAX_RECORD_BYTES
+    """A record longer than this is rejected (``record too long``) without being loaded."""
 
     def __iter__(self) -> Iterator[LogRecord]:
         path = str(self.path)
@@ -200,8 +207,8 @@ class AtrLogReader:
         last_t: float | None = None
         while pos < size:
             fh.seek(pos)
-            unpacker = msgpack.Unpacker(fh, raw=False, read_size=READ_SIZE, max_buffer_size=MAX_BUFFER,
-                                        strict_map_key=False)
+            unpacker = msgpack.Unpacker(fh, raw=False, read_size=min(READ_SIZE, self.max_record_bytes),
+                                        max_buffer_size=self.max_record_bytes, strict_map_key=False)
             unpack, tell = unpacker.unpack, unpacker.tell
             offset = pos
             kind, why, frame_end = None, "", 0
@@ -210,6 +217,9 @@ class AtrLogReader:
                     obj = unpack()
                 except msgpack.OutOfData:
                     kind, why = "out of data", "a frame longer than the rest of the file"
+                    break
+                except msgpack.BufferFull:
+                    kind, why = TOO_LONG, f"longer than the reader's limit of {self.max_record_bytes} bytes"
                     break
                 except UnicodeDecodeError as exc:
                     kind, why = UNDECODABLE_STR, str(exc)
@@ -250,7 +260,11 @@ class AtrLogReader:
             if start >= size:
                 break
             end, text = None, ""
-            if kind in (UNDECODABLE_STR, UNHASHABLE_KEY):
+            if kind == TOO_LONG:
+                end = _walk_frame_end(fh, start, size) if _RECORD_HEAD.match(_peek(fh, start)) else None
+                text = (f"record at byte {start} rejected: {kind}: {why}"
+                        + (f" ({end - start} bytes skipped)" if end is not None else ""))
+            elif kind in (UNDECODABLE_STR, UNHASHABLE_KEY):
                 end = _record_frame_end(fh, start)
                 text = f"record at byte {start} rejected: {kind}: {why} ({(end or start) - start} bytes skipped)"
             elif kind in CHECK_REASONS:
@@ -301,7 +315,7 @@ class AtrLogReader:
                 if m.start() >= SCAN_SIZE:
                     break
                 q = p + m.start()
-                if _acceptable(fh, q, size, last_t):
+                if _acceptable(fh, q, size, last_t, self.max_record_bytes):
                     return q
             p += SCAN_SIZE
         return None
@@ -344,10 +358,11 @@ def _peek(fh: BinaryIO, offset: int) -> bytes:
     return fh.read(_HEAD_MAX)
 
 
-def _decode_at(fh: BinaryIO, offset: int) -> tuple[Any, int] | None:
-    """(object, end offset) of the msgpack frame at ``offset``, or None when it does not decode."""
+def _decode_at(fh: BinaryIO, offset: int, limit: int = MAX_RECORD_BYTES) -> tuple[Any, int] | None:
+    """(object, end offset) of the msgpack frame at ``offset``, or None when it does not decode
+    within ``limit`` bytes."""
     fh.seek(offset)
-    u = msgpack.Unpacker(fh, raw=False, read_size=1 << 16, max_buffer_size=MAX_BUFFER, strict_map_key=False)
+    u = msgpack.Unpacker(fh, raw=False, read_size=1 << 16, max_buffer_size=limit, strict_map_key=False)
     try:
         obj = u.unpack()
     except (msgpack.UnpackException, ValueError, TypeError):
@@ -357,17 +372,64 @@ def _decode_at(fh: BinaryIO, offset: int) -> tuple[Any, int] | None:
 
 def _record_frame_end(fh: BinaryIO, offset: int) -> int | None:
     """End of the frame at ``offset`` when it is framed as a record (a map whose first key is
-    "t", "link" or "msg") and whole; None otherwise. The frame is skipped, not built, so bad
-    UTF-8 or an unhashable key inside it do not matter."""
+    "t", "link" or "msg") and whole; None otherwise. The frame is stepped over from its headers
+    (:func:`_walk_frame_end`), not built, so bad UTF-8 or an unhashable key inside it do not
+    matter, and its size costs no memory."""
     if not _RECORD_HEAD.match(_peek(fh, offset)):
         return None
-    fh.seek(offset)
-    u = msgpack.Unpacker(fh, raw=True, read_size=1 << 16, max_buffer_size=MAX_BUFFER, strict_map_key=False)
-    try:
-        u.skip()
-    except (msgpack.UnpackException, ValueError, TypeError):
-        return None
-    return offset + u.tell()
+    fh.seek(0, os.SEEK_END)
+    return _walk_frame_end(fh, offset, fh.tell())
+
+
+_FIXED = {0xc0: 0, 0xc2: 0, 0xc3: 0, 0xca: 4, 0xcb: 8, 0xcc: 1, 0xcd: 2, 0xce: 4, 0xcf: 8, 0xd0: 1, 0xd1: 2,
+          0xd2: 4, 0xd3: 8, 0xd4: 2, 0xd5: 3, 0xd6: 5, 0xd7: 9, 0xd8: 17}
+"""msgpack first bytes followed by a fixed number of bytes (fixext: type byte included)."""
+_SIZED = {0xc4: (1, 0), 0xc5: (2, 0), 0xc6: (4, 0), 0xc7: (1, 1), 0xc8: (2, 1), 0xc9: (4, 1), 0xd9: (1, 0),
+          0xda: (2, 0), 0xdb: (4, 0)}
+"""bin, ext and str: (bytes of the length, extra bytes after it: the ext type)."""
+_WALK_MAX_OBJECTS = 1 << 20
+
+
+def _walk_frame_end(fh: BinaryIO, offset: int, size: int) -> int | None:
+    """End of the msgpack frame at ``offset`` from its headers only (str, bin and ext payloads
+    are stepped over, never read), or None when the frame is not whole, not msgpack, or holds
+    more than a million objects: the skip of a record too long to load."""
+    pos, pending, seen = offset, 1, 0
+    while pending:
+        if pos >= size or seen >= _WALK_MAX_OBJECTS:
+            return None
+        fh.seek(pos)
+        head = fh.read(5)
+        b = head[0]
+        pending -= 1
+        seen += 1
+        if b <= 0x7f or b >= 0xe0:
+            pos += 1
+        elif b <= 0x8f:
+            pending += 2 * (b & 0x0f)
+            pos += 1
+        elif b <= 0x9f:
+            pending += b & 0x0f
+            pos += 1
+        elif b <= 0xbf:
+            pos += 1 + (b & 0x1f)
+        elif b in _FIXED:
+            pos += 1 + _FIXED[b]
+        elif b in _SIZED:
+            n, extra = _SIZED[b]
+            if len(head) < 1 + n:
+                return None
+            pos += 1 + n + extra + int.from_bytes(head[1:1 + n], "big")
+        elif b in (0xdc, 0xdd, 0xde, 0xdf):
+            n = 2 if b in (0xdc, 0xde) else 4
+            if len(head) < 1 + n:
+                return None
+            count = int.from_bytes(head[1:1 + n], "big")
+            pending += count * (2 if b >= 0xde else 1)
+            pos += 1 + n
+        else:  # 0xc1: never used
+            return None
+    return pos if pos <= size else None
 
 
 def _plausible_head(fh: BinaryIO, offset: int) -> bool:
@@ -376,7 +438,7 @@ def _plausible_head(fh: BinaryIO, offset: int) -> bool:
     them first keeps a candidate that merely looks like a record head (a few bytes inside a
     tile's pixels) from decoding the megabytes its ``msg`` may claim."""
     fh.seek(offset)
-    u = msgpack.Unpacker(fh, raw=False, read_size=1 << 12, max_buffer_size=MAX_BUFFER, strict_map_key=False)
+    u = msgpack.Unpacker(fh, raw=False, read_size=1 << 12, max_buffer_size=1 << 16, strict_map_key=False)
     try:
         n = u.read_map_header()
         seen: dict[Any, Any] = {}
@@ -392,17 +454,18 @@ def _plausible_head(fh: BinaryIO, offset: int) -> bool:
             and math.isfinite(t))
 
 
-def _acceptable(fh: BinaryIO, offset: int, size: int, last_t: float | None) -> bool:
+def _acceptable(fh: BinaryIO, offset: int, size: int, last_t: float | None,
+                limit: int = MAX_RECORD_BYTES) -> bool:
     """Whether reading may resume at ``offset`` (see :meth:`AtrLogReader._resync`)."""
     if not _plausible_head(fh, offset):
         return False
-    got = _decode_at(fh, offset)
+    got = _decode_at(fh, offset, limit)
     if got is None or check_record(got[0]) is not None:
         return False
     obj, end = got
     if last_t is None or abs(float(obj["t"]) - last_t) <= RESYNC_WINDOW_S or end >= size:
         return True
-    after = _decode_at(fh, end)  # far in time: believe it only when the next record is valid too
+    after = _decode_at(fh, end, limit)  # far in time: believe it only when the next record is valid too
     return after is not None and check_record(after[0]) is None
 
 

@@ -55,7 +55,7 @@ import numpy as np
 
 from ..calibration.model import PerformanceModel
 from ..config import Settings, resolve_relative
-from ..detectors import BackgroundTracker, column_median, required_margin, window_geometry
+from ..detectors import BackgroundTracker, column_mean, column_median, required_margin, window_geometry
 from ..detectors.sat import Workspace
 from ..errors import AtrError, TileError
 from ..fusion import ContactTracker, EvidenceGrid, Observation
@@ -127,9 +127,10 @@ class PipelineStats:
         return float(np.percentile(a, 50)), float(np.percentile(a, 99))
 
 
-def _trackers(forgetting: float) -> tuple[BackgroundTracker, BackgroundTracker]:
-    """The leg's b(j) and m(j) trackers, with the same forgetting (SPEC section 2)."""
-    return BackgroundTracker(forgetting), BackgroundTracker(forgetting, statistic=column_median)
+def _trackers(memory_m: float) -> tuple[BackgroundTracker, BackgroundTracker]:
+    """The leg's b(j) and m(j) trackers, forgetting per metre along track (SPEC section 2)."""
+    return (BackgroundTracker(memory_m=memory_m),
+            BackgroundTracker(memory_m=memory_m, statistic=column_median))
 
 
 class Pipeline:
@@ -464,27 +465,47 @@ class Pipeline:
     def _process(self, tile: Tile) -> None:
         """A tile with nav into the strips (and the units it completes to the detectors)."""
         if self.strips is None:
-            geom = window_geometry(tile.ranges_m[-1:], dr_m=tile.dr_m, dx_m=tile.dx_m,
-                                   altitude_m=float(np.median(tile.nav.altitude_m)), template=self.settings.template)
-            extra = int(math.ceil(self.settings.node.tile_margin_m / tile.dx_m))
-            self.strips = StripAssembler(required_margin(geom)[0] + extra, max_gap_s=self.settings.node.nav_max_gap_s,
-                                         alloc=self._unit_pixels)
+            self.strips = StripAssembler(self._strip_geometry(tile)[0], max_gap_s=self.settings.node.nav_max_gap_s,
+                                         alloc=self._unit_pixels, geometry=self._strip_geometry)
+        elif self.strips.geometry is None:  # resumed from a snapshot: new strips as a fresh node makes them
+            self.strips.geometry = self._strip_geometry
         self.tiles_merged += 1
         self.mission = tile.mission  # evidence deltas name their mission (atr_node.node.exchange)
         if self._strip_leg is not None and tile.leg != self._strip_leg:
             # a new leg: end the old leg's strips on both sides before any of the new leg's
-            # evidence, so the old leg is complete when the grid closes it
-            for unit in self.strips.flush():
-                self._submit(unit)
+            # evidence, so the old leg is complete when the grid closes it: right after its
+            # last unit is fused (the new leg's first unit may wait for node.first_unit_length_m
+            # of pings; the old leg's evidence and its exchange delta do not wait for it)
+            units = self.strips.flush()
+            for i, unit in enumerate(units):
+                self._submit(dataclasses.replace(unit, closes_leg=True) if i == len(units) - 1 else unit)
         self._strip_leg = tile.leg
-        repeats = self.strips.seq_repeats
+        repeats, breaks = self.strips.seq_repeats, dict(self.strips.breaks)
         for unit in self.strips.push(tile):
             self._submit(unit)
+        for why, n in self.strips.breaks.items():
+            if n > breaks.get(why, 0) and not breaks.get(why):  # once per reason; the rest are counted
+                log.warning("%s: %s (dx_m %g); a new strip starts here, with margins of its own (further "
+                            "strip breaks are counted in the summary's strip_breaks, not logged)", tile.ident, why,
+                            tile.dx_m)
         if self.strips.seq_repeats > repeats and not self._seq_repeat_said:
             self._seq_repeat_said = True  # once a run: a recorder that never sets seq repeats it on every tile
             log.warning("%s: seq %d does not increase on the previous tile of its leg and side (ICD section 1: "
                         "+1 per tile and side); tiles are counted by arrival, not by seq (further repeats are "
                         "counted in the summary's seq_repeats, not logged)", tile.ident, tile.seq)
+
+    def _strip_geometry(self, tile: Tile) -> tuple[int, int, int]:
+        """(margin rows, unit rows, first unit rows) of a strip starting with ``tile``: from its ping spacing and
+        the settings only, so that neither depends on where the tiles were cut (SPEC section 0)
+        nor on the first tile the node saw. The row margin does not depend on the altitude
+        (``required_margin``: the template's along-track windows), so the sonar's nominal
+        altitude stands in for it."""
+        node = self.settings.node
+        geom = window_geometry(tile.ranges_m[-1:], dr_m=tile.dr_m, dx_m=tile.dx_m,
+                               altitude_m=self.settings.sensor.altitude_m, template=self.settings.template)
+        margin = required_margin(geom)[0] + int(math.ceil(node.tile_margin_m / tile.dx_m))
+        k = max(1, int(round(node.unit_length_m / tile.dx_m)))
+        return margin, k, max(k, int(round(node.first_unit_length_m / tile.dx_m)))
 
     def _unit_pixels(self, shape: tuple[int, int]) -> np.ndarray:
         """Memory for a unit's pixels: a shared-memory slot when units go to the worker in
@@ -528,9 +549,8 @@ class Pipeline:
                 log.warning("back to nominal mode")
         key = (unit.leg, unit.side)
         if key not in self._bg:
-            f = self.settings.detectors.background_forgetting
             self._bg = {k: v for k, v in self._bg.items() if k[0] == unit.leg}  # a new leg: forget older ones
-            self._bg[key] = _trackers(f)
+            self._bg[key] = _trackers(self.settings.detectors.background_memory_m)
         bg_tracker, med_tracker = self._bg[key]
         b = bg_tracker.background
         if b is not None and b.shape[0] != unit.pixels.shape[1]:
@@ -540,8 +560,14 @@ class Pipeline:
             bg_tracker.reset()
             med_tracker.reset()
         core_px = unit.pixels[unit.core]
-        background = bg_tracker.update(core_px)
-        median = med_tracker.update(core_px)
+        # per ping (the mean) and per unit of fixed pings (the median): the same whatever the cut
+        background = bg_tracker.update(core_px, dx_m=unit.dx_m)
+        median = med_tracker.update(core_px, dx_m=unit.dx_m)
+        if unit.lookahead is not None:
+            # a strip's first unit: scored against the statistics of the strip's first
+            # node.first_unit_length_m (its core's and the pings after it, as the trackers would
+            # have them there), not of its own core alone; the trackers go on from its core
+            background, median = column_mean(unit.lookahead), column_median(unit.lookahead)
         model = self._current_model()
         taus = {d: float(model.tau.get(d, getattr(self.settings.detectors.threshold, d))) for d in self.enabled}
         det_settings = self.settings.detectors
@@ -674,6 +700,8 @@ class Pipeline:
         t1 = time.monotonic()
         try:
             self.grid.add_observation(Observation(unit.leg, t, geometry, tuple(observations)))
+            if unit.closes_leg and unit.leg in self.grid.open:
+                self.grid.close_leg(unit.leg)
         except AtrError as exc:  # e.g. a leg number reused after the leg was closed
             self.stats.rejections[f"fusion: {type(exc).__name__}"] += 1
             log.error("leg %d %s: evidence rejected: %s", unit.leg, unit.side, exc)

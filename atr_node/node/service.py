@@ -311,6 +311,8 @@ class NodeService:
                 # DS masses clamped to 1 - eps (SPEC section 6): evidence the grid had to cap
                 "clamped": int(self.pipeline.grid.n_clamped),
                 "seq_repeats": 0 if self.pipeline.strips is None else self.pipeline.strips.seq_repeats,
+                # strips ended early within a leg, by reason (a gap in ping time, another dx_m)
+                "strip_breaks": {} if self.pipeline.strips is None else dict(self.pipeline.strips.breaks),
                 "frame": None if self.pipeline.frame is None else {**self.pipeline.frame.to_dict(),
                                                                    "name": self.pipeline.frame.name},
                 "snapshot_endpoint": None if self.snapshot_server is None else {

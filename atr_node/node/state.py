@@ -327,6 +327,7 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         meta["bg"].append([leg, side])
         arrays[f"bg_{i}_b"] = bg.background if bg.background is not None else np.zeros(0)
         arrays[f"bg_{i}_m"] = med.background if med.background is not None else np.zeros(0)
+        arrays[f"bg_{i}_w"] = bg.weight if bg.weight is not None else np.zeros(0)
     return arrays, meta
 
 
@@ -373,10 +374,11 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     p.hold_for_calibration([Tile.unpack(a[f"cal_held_{i}"].tobytes()) for i in range(int(meta.get("cal_held", 0)))])
 
     p._bg = {}
-    f = p.settings.detectors.background_forgetting
+    f = p.settings.detectors.background_memory_m
     for i, (leg, side) in enumerate(meta["bg"]):
         bg, med = _trackers(f)
         b, m = a[f"bg_{i}_b"], a[f"bg_{i}_m"]
-        bg.restore(b if b.size else None)
+        w = a.get(f"bg_{i}_w")  # the mean's weight (snapshots before issue 21 item 1 have none)
+        bg.restore(b if b.size else None, w if w is not None and w.size else None)
         med.restore(m if m.size else None)
         p._bg[(int(leg), side)] = (bg, med)

@@ -243,7 +243,10 @@ def test_ctrl_c_while_waiting_for_the_model_exits_at_once_and_the_resume_loses_n
 
 def test_live_keeps_the_given_model_until_the_worker_delivers_and_logs_the_switch(short, caplog):
     settings, _, log, _ = short
-    settings = dataclasses.replace(settings, calibration=dataclasses.replace(settings.calibration, online_tiles=2))
+    # short units (6.4 m; the recording's tiles are 12.8 m): units are fused before the worker
+    # is waited for, after the second tile
+    settings = dataclasses.replace(settings, calibration=dataclasses.replace(settings.calibration, online_tiles=2),
+                                   node=dataclasses.replace(settings.node, unit_length_m=6.4, first_unit_length_m=6.4))
 
     def wait_for_worker(pipe: Pipeline) -> None:
         # a live node never waits: the test waits, between records, for the worker to answer,

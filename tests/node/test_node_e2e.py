@@ -126,6 +126,7 @@ def test_hil_replay_through_pty_can_zmq_into_the_node(mission, tmp_path):
     # the same mission replayed in-process gives the same contacts (the strips of the last leg
     # are flushed by finish() in a replay; live, they wait for the next leg, so compare the
     # contacts both have published, by id, after flushing the live node too)
+    service.pipeline.emit = lambda msg: None  # the service is closed: its publisher's socket too
     service.pipeline.finish()
     live = service.pipeline.contacts
     ref = replay_in_process(settings, files.atrlog, workers=0)

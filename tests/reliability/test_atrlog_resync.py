@@ -228,3 +228,74 @@ def test_a_look_alike_head_swallowing_the_next_record_does_not_hide_it(tmp_path)
     reader = AtrLogReader(path)
     assert [(r.t, r.link, r.msg, r.offset) for r in reader] == [(1.7e9, "nmea", b"$GPHDT,1.0,T*00", 3)]
     assert reader.skipped_bytes == 3 and dict(reader.reasons) == {"garbage skipped": 1}
+
+
+# -- a record too long to load (issue 21 item 4) ---------------------------------------------
+def _write_with_huge_nmea(path, original_data: bytes, at: int, payload_bytes: int) -> None:
+    """The recording with one ``nmea`` record of ``payload_bytes`` bytes of "A" inserted at
+    byte ``at`` (a record boundary), written in chunks: the test never holds the record."""
+    head = (b"\x83\xa1t" + msgpack.packb(1.0e9, use_single_float=False) + b"\xa4link\xa4nmea\xa3msg\xc6"
+            + payload_bytes.to_bytes(4, "big"))
+    chunk = b"A" * (1 << 20)
+    with open(path, "wb") as fh:
+        fh.write(original_data[:at])
+        fh.write(head)
+        left = payload_bytes
+        while left:
+            n = min(left, len(chunk))
+            fh.write(chunk[:n])
+            left -= n
+        fh.write(original_data[at:])
+
+
+def test_a_record_too_long_is_skipped_by_its_length_without_being_loaded(original, tmp_path):
+    """A 300 MB NMEA record past the reader's limit (16 MiB here; 128 MiB by default): rejected
+    as ``record too long``, skipped exactly by the length in its header, every other record
+    kept; the reading process (a fresh one) peaks at about twice the limit (msgpack's buffer),
+    far below the record's size. Before: msgpack loaded the whole record (a 1 GB line peaked
+    at 3.5 GB)."""
+    data, recs, offsets = original
+    path = tmp_path / "huge_nmea.atrlog"
+    payload = 300 << 20
+    _write_with_huge_nmea(path, data, offsets[3], payload)
+    # VmHWM: this process's own peak (ru_maxrss would carry the forking pytest's over exec)
+    code = ("import json, sys\n"
+            "from atr_node.io.atrlog import AtrLogReader\n"
+            "r = AtrLogReader(sys.argv[1], max_record_bytes=16 << 20)\n"
+            "keys = [(x.t, x.link) for x in r]\n"
+            "hwm = [int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM:')][0]\n"
+            "print(json.dumps({'keys': keys, 'reasons': dict(r.reasons), 'errors': r.errors,"
+            " 'peak_mib': hwm / 1024}))\n")
+    p = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    got = json.loads(p.stdout)
+    assert got["reasons"] == {"record too long": 1}, got["reasons"]
+    assert [tuple(k) for k in got["keys"]] == [(r.t, r.link) for r in recs]
+    assert "record too long" in got["errors"][0] and f"byte {offsets[3]}" in got["errors"][0]
+    assert got["peak_mib"] < 150, got["peak_mib"]  # 300 MB loaded whole would be > 300
+
+
+def test_the_reader_limit_is_a_setting_and_the_walk_finds_exact_frame_ends(tmp_path):
+    """``max_record_bytes``: a record just over it is rejected, just under it read; the header
+    walk gives msgpack's own frame end for every type of object (checked against the packer)."""
+    from atr_node.io.atrlog import _walk_frame_end
+
+    objs = [{"t": 1.5, "link": "sonar", "msg": {"a": [1, -1, 2 ** 40, -2 ** 40, 1.5, None, True, "x" * 40,
+                                                     b"y" * 300, "z" * 70000, list(range(20)),
+                                                     {str(i): i for i in range(20)}, msgpack.ExtType(5, b"e" * 3),
+                                                     msgpack.ExtType(6, b"f" * 300), 2 ** 64 - 1, -2 ** 63]}},
+            {"t": 2.0, "link": "nmea", "msg": b"$GPGGA"}]
+    path = tmp_path / "walk.bin"
+    blobs = [msgpack.packb(o, use_bin_type=True) for o in objs]
+    path.write_bytes(b"".join(blobs))
+    with open(path, "rb") as fh:
+        assert _walk_frame_end(fh, 0, path.stat().st_size) == len(blobs[0])
+        assert _walk_frame_end(fh, len(blobs[0]), path.stat().st_size) == path.stat().st_size
+        assert _walk_frame_end(fh, 0, len(blobs[0]) - 1) is None  # not whole
+    log = tmp_path / "limit.atrlog"
+    with AtrLogWriter(log) as w:
+        w.write(1.0, "nmea", b"$" + b"A" * 5000)
+        w.write(2.0, "nmea", b"$GPHDT,1.0,T*00")
+    short = AtrLogReader(log, max_record_bytes=4096)
+    assert [r.t for r in short] == [2.0] and short.reasons == {"record too long": 1}
+    assert [r.t for r in AtrLogReader(log, max_record_bytes=8192)] == [1.0, 2.0]

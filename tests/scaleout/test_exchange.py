@@ -248,7 +248,9 @@ def test_two_nodes_exchange_deltas_over_zeromq(four_leg_mission, tmp_path):
             pipes[node].finish()
         n_sent = {node: e.publisher.sent for node, e in ex.items()}
         # a replay of A's deltas and some garbage, sent on A's socket
-        for d in pipes["auv-a"].grid.outbox[:3]:
+        replayed = pipes["auv-a"].grid.outbox[:3]
+        assert len(replayed) >= 2  # one per leg at least
+        for d in replayed:
             ex["auv-a"].publisher.send(d)
         ex["auv-a"].publisher._sock.send_multipart([b"evidence", b"\xc1 not msgpack"])
         deadline = time.monotonic() + 20
@@ -256,11 +258,11 @@ def test_two_nodes_exchange_deltas_over_zeromq(four_leg_mission, tmp_path):
             for e in ex.values():
                 e.pump(timeout_s=0.05)
             if (ex["auv-a"].counters["ingested"] == n_sent["auv-b"]
-                    and ex["auv-b"].counters["duplicates"] == 3 and ex["auv-b"].counters["rejected"] == 1):
+                    and ex["auv-b"].counters["duplicates"] == len(replayed) and ex["auv-b"].counters["rejected"] == 1):
                 break
         assert ex["auv-a"].counters["ingested"] == n_sent["auv-b"] > 0
         assert ex["auv-b"].counters["ingested"] == n_sent["auv-a"] > 0
-        assert ex["auv-b"].counters["duplicates"] == 3 and ex["auv-b"].counters["rejected"] == 1
+        assert ex["auv-b"].counters["duplicates"] == len(replayed) and ex["auv-b"].counters["rejected"] == 1
         for node in logs:
             assert_same_bits(committed_state(pipes[node].grid), ref)
     finally:
