@@ -441,7 +441,10 @@ class NodeSettings:
 
     data_dir: str = "/var/lib/atr-node"
     queue_tiles: int = 8
-    """Bounded queue between ingest and detection; beyond it the node degrades."""
+    """Bounded queue between ingest and detection, in tiles: live, the node degrades when the
+    units in flight hold this many of the latest tile's units (``queue_tiles`` x the units a
+    tile of its length makes, at least one each: a 4096-ping tile makes 16 units of 25.6 m at
+    0.1 m), and drops units at twice that."""
     heartbeat_s: float = 1.0
     snapshot_every_tiles: int = 20
     record: bool = True

@@ -30,8 +30,8 @@ live node cannot hold tiles: it switches when the model arrives. Two modes:
   itself (``node.replay_main_scores``, :meth:`Pipeline._steal`).
 - ``live``: never waits. While the worker scores a unit, the next ones wait in this process,
   which scores them itself when the links are quiet (``node.live_main_scores``: the second
-  side of a ping need not wait for the first). When ``node.queue_tiles`` units are in flight
-  the node enters the *degraded* mode: new units are scored at decimation 2 (four times less
+  side of a ping need not wait for the first). When ``node.queue_tiles`` tiles' worth of units
+  are in flight (the latest tile's units per tile, at least one) the node enters the *degraded* mode: new units are scored at decimation 2 (four times less
   work, slightly coarser scores); at twice that many, whole units are dropped and counted as
   ``tiles_dropped``. It returns to nominal when the queue is below half the limit. The
   mode is in every heartbeat.
@@ -205,6 +205,9 @@ class Pipeline:
         in this process (live, ``node.live_main_scores``)."""
         self._inflight_px = 0
         """Pixels of the units in flight (replay back-pressure)."""
+        self._units_per_tile = 1
+        """Units the latest tile makes (its rows over a unit's, at least 1): the live queue
+        limit is ``node.queue_tiles`` tiles of them."""
         self._timing: dict[int, UnitTiming] = {}
         """id(unit) -> its stage times, from submit to fuse."""
         self.sweep: dict[str, tuple[float, ...]] | None = None
@@ -470,6 +473,8 @@ class Pipeline:
         elif self.strips.geometry is None:  # resumed from a snapshot: new strips as a fresh node makes them
             self.strips.geometry = self._strip_geometry
         self.tiles_merged += 1
+        # the live queue's limit counts tiles: units of the latest tile's length (node.queue_tiles)
+        self._units_per_tile = max(1, math.ceil(tile.rows / max(1, round(self.settings.node.unit_length_m / tile.dx_m))))
         self.mission = tile.mission  # evidence deltas name their mission (atr_node.node.exchange)
         if self._strip_leg is not None and tile.leg != self._strip_leg:
             # a new leg: end the old leg's strips on both sides before any of the new leg's
@@ -530,7 +535,7 @@ class Pipeline:
     def _submit(self, unit: StripUnit) -> None:
         timing = UnitTiming(unit.side, unit.seq, unit.core_rows, self._arrival.get((unit.side, unit.seq)),
                             time.monotonic())
-        limit = self.settings.node.queue_tiles
+        limit = self.settings.node.queue_tiles * self._units_per_tile
         if self.mode == "live":
             depth = len(self._inflight)
             if depth >= 2 * limit:

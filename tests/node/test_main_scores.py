@@ -133,3 +133,28 @@ def test_live_held_units_reach_the_worker_oldest_first(small_mission):
         assert pipe.channel.in_use == 0 and not pipe.channel.slots._staged
     finally:
         pipe.close()
+
+
+def test_live_queue_counts_tiles_not_the_units_a_long_tile_makes(small_mission):
+    """Live, the worker busy: a leg re-cut into one 700-ping tile per side makes 2 units a side
+    at once (25.6 m each; the third waits for the leg's end). ``node.queue_tiles`` = 1 is one
+    tile's worth of units (3 here), so the 4 units of the leg's two tiles degrade the node
+    (decimation) but none is dropped. Before, the limit counted units: 2 of the 4 were dropped."""
+    from atr_node.io.recut import fixed, recut_records
+
+    settings, _cfg, files = small_mission
+    s = _live(settings, warm_up_mpx=0.05, queue_tiles=1, live_main_scores=False)
+    recs = recut_records(read_atrlog(files.atrlog), fixed(1024))
+    first_leg_end = next(i for i, r in enumerate(recs) if r.link == "sonar" and int(r.msg["leg"]) > 0)
+    pipe = Pipeline(s, model=PerformanceModel.shipped(), workers=1, mode="live")
+    try:
+        pipe.warming.result(timeout=120)
+        pipe._pool.submit(time.sleep, 3.0)  # the worker is busy while the leg's tiles arrive
+        for rec in recs[:first_leg_end]:
+            pipe.feed(rec)
+        assert pipe.tiles_merged == 2 and pipe.inflight == 4
+        assert pipe.stats.tiles_dropped == 0 and pipe.stats.units_degraded >= 1
+        pipe.finish()
+        assert pipe.stats.tiles_dropped == 0 and pipe.inflight == 0
+    finally:
+        pipe.close()

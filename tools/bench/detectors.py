@@ -404,7 +404,7 @@ def mission_jobs(max_jobs: int) -> list[node_detect.DetectJob]:
     jobs: list[node_detect.DetectJob] = []
 
     def record(job: node_detect.DetectJob) -> node_detect.DetectResult:
-        if len(jobs) < max_jobs and job.core[1] - job.core[0] >= 512:
+        if len(jobs) < max_jobs and job.core[1] - job.core[0] >= 256:  # a whole unit (25.6 m at 0.1 m)
             jobs.append(job)
         return node_detect.detect(job)
 
