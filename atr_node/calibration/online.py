@@ -48,9 +48,10 @@ WORKER_NICE = 10
 """Niceness added to the worker process."""
 
 
-def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any) -> None:
+def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any, progress: Any = None) -> None:
     """Worker process: gather ``n_tiles`` images (or fewer before a stop), calibrate, reply
-    ``("model", body)`` or ``("error", message)``."""
+    ``("model", body)`` or ``("error", message)``; ``progress`` (a shared array of two ints):
+    the injection rounds done and to do, for the node's progress line."""
     try:
         # Below the node's priority: on a 2-core vehicle computer tile processing comes first.
         os.nice(WORKER_NICE)
@@ -83,8 +84,12 @@ def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any) -> None:
             results.put(("error", "no tile to calibrate on"))
             return
         cal = settings.calibration
+        def tick(done: int, total: int) -> None:
+            if progress is not None:
+                progress[1], progress[0] = total, done
+
         resp = collect_responses(images, settings=settings, iterations=cal.online_iterations,
-                                 targets_per_image=cal.targets_per_image, seed=cal.seed)
+                                 targets_per_image=cal.targets_per_image, seed=cal.seed, progress=tick)
         model = estimate_model(resp, calibration=cal, thresholds=settings.detectors.threshold,
                                provenance={"source": "on-line", "offered_images": [im.name for im in images]})
         results.put(("model", model.to_dict()))
@@ -150,10 +155,18 @@ class OnlineCalibrator:
         ctx = mp.get_context("spawn")  # no fork of a process that holds sockets and threads
         self._tiles = ctx.Queue(maxsize=self.n_tiles + 1)
         self._results = ctx.Queue(maxsize=1)
-        self._proc = ctx.Process(target=_worker, args=(settings, self.n_tiles, self._tiles, self._results),
+        self._progress = ctx.Array("i", 2, lock=False)  # rounds done, rounds to do (one writer)
+        self._proc = ctx.Process(target=_worker, args=(settings, self.n_tiles, self._tiles, self._results,
+                                                       self._progress),
                                  name="atr-online-calibration", daemon=True)
         _start_ignoring_sigint(self._proc)
         self._done = False
+
+    @property
+    def progress(self) -> tuple[int, int]:
+        """(injection rounds done, rounds to do) of the worker's calibration: one round is
+        one iteration on one image; (0, 0) before it starts injecting."""
+        return int(self._progress[0]), int(self._progress[1])
 
     @property
     def model(self) -> PerformanceModel:

@@ -203,7 +203,8 @@ def notes_text(summary: dict) -> str:
 class _Progress:
     """A one-line progress report on stderr (records, tiles, contacts, rate), refreshed twice a
     second by a thread, so it keeps moving while the node waits for the on-line calibration
-    (``calibrating on 8 tiles: waiting for the model, 12 s``) instead of looking hung."""
+    (``calibrating on 8 tile(s): 34/80 injection rounds, waiting for the on-line model 3 s``)
+    instead of looking hung."""
 
     def __init__(self, service, *, quiet: bool) -> None:
         self.service, self.quiet = service, quiet
@@ -220,7 +221,9 @@ class _Progress:
         online = self.service.pipeline.online
         since = getattr(online, "waiting_since", None) if online is not None else None
         if since is not None:
-            return (f"calibrating on {online.offered} tile(s): waiting for the on-line model, "
+            done, total = online.progress
+            stage = f"{done}/{total} injection rounds" if total else "gathering tiles"
+            return (f"calibrating on {online.offered} tile(s): {stage}, waiting for the on-line model "
                     f"{now - since:.0f} s ({st.tiles_in} tiles in)")
         mpx = st.pixels / 1e6 / max(now - self._t0, 1e-9)
         tracker = self.service.pipeline.tracker  # one atomic read of a dict's size: no copy, no race

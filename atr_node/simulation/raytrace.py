@@ -150,45 +150,49 @@ def _clip_above_seabed(a: np.ndarray, b: np.ndarray, valid: np.ndarray) -> tuple
     return a, b, valid
 
 
-def trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
-          altitude_m: float, subrays: int = 2) -> Signature:
-    """Trace a placed target (tile frame, see :func:`~.meshes.place`) into proportion maps.
+@dataclass(frozen=True, eq=False)
+class TraceWindow:
+    """What :func:`trace` needs of a placed target before it traces a ray: its usable
+    triangles and their normals, and the window of the tile it can reach (rows ``i0 .. i1``,
+    columns ``c0 .. c1``; seabed points ``cs0 .. cs1``). Cheap (the mesh's bounding box): a
+    caller can reject a placement on the window before paying for the trace."""
 
-    Parameters
-    ----------
-    mesh
-        The target in the tile frame (metres).
-    range0_m, dr_m, dx_m
-        Ground range of column 0, range-bin and ping spacing.
-    rows, cols
-        Tile size; the returned window is clipped to it.
-    altitude_m
-        Sensor altitude H above the seabed.
-    subrays
-        k: k x k sub-rays per pixel.
+    tri: np.ndarray
+    normals: np.ndarray
+    lo: np.ndarray
+    zmax: float
+    i0: int
+    i1: int
+    c0: int
+    c1: int
+    cs0: int
+    cs1: int
 
-    Returns
-    -------
-    Signature
-        Empty when the target is outside the tile or entirely buried.
-    """
+    @property
+    def footprint(self) -> tuple[int, int, int, int]:
+        """(row0, row1, col0, col1), half-open: the traced :class:`Signature`'s footprint."""
+        return self.i0, self.i1, self.c0, self.c1
+
+
+def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
+                 altitude_m: float) -> TraceWindow | None:
+    """The window :func:`trace` traces a placed target into, or None when the trace is empty
+    (outside the tile, entirely buried, on the other side of the track). Parameters as
+    :func:`trace`."""
     if not (altitude_m > 0 and math.isfinite(altitude_m)):
         raise GeometryError(f"altitude must be finite and > 0, got {altitude_m!r}")
     if dr_m <= 0 or dx_m <= 0:
         raise GeometryError(f"pixel spacing must be > 0, got dr={dr_m}, dx={dx_m}")
-    k = int(subrays)
-    if k < 1:
-        raise GeometryError(f"subrays must be >= 1, got {subrays}")
     H = float(altitude_m)
     tri_all = mesh.triangles_m
     normals, keep = _facet_normals(tri_all)
     tri = tri_all[keep]
     if len(tri) == 0:
-        return _empty()
+        return None
     lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
     zmax = min(hi[2], H)
     if zmax <= 0.0 or hi[1] <= 0.0:
-        return _empty()  # entirely buried, or on the other side of the track
+        return None  # entirely buried, or on the other side of the track
     # Rows the target spans (pixel i covers x in [(i - 1/2) dx, (i + 1/2) dx)).
     i0 = max(int(math.floor(lo[0] / dx_m + 0.5)), 0)
     i1 = min(int(math.floor(hi[0] / dx_m + 0.5)) + 1, rows)
@@ -204,7 +208,45 @@ def trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, c
     ce0 = max(int(math.floor((g_min - edge0) / dr_m)), 0)
     c0, c1 = min(cs0, ce0), cs1
     if i1 <= i0 or c1 <= c0 or cs1 <= cs0:
+        return None
+    return TraceWindow(tri, normals, lo, float(zmax), i0, i1, c0, c1, cs0, cs1)
+
+
+def trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
+          altitude_m: float, subrays: int = 2, window: TraceWindow | None = None) -> Signature:
+    """Trace a placed target (tile frame, see :func:`~.meshes.place`) into proportion maps.
+
+    Parameters
+    ----------
+    mesh
+        The target in the tile frame (metres).
+    range0_m, dr_m, dx_m
+        Ground range of column 0, range-bin and ping spacing.
+    rows, cols
+        Tile size; the returned window is clipped to it.
+    altitude_m
+        Sensor altitude H above the seabed.
+    subrays
+        k: k x k sub-rays per pixel.
+    window
+        :func:`trace_window` of the same mesh and geometry, when the caller has it already.
+
+    Returns
+    -------
+    Signature
+        Empty when the target is outside the tile or entirely buried.
+    """
+    k = int(subrays)
+    if k < 1:
+        raise GeometryError(f"subrays must be >= 1, got {subrays}")
+    w = window if window is not None else trace_window(mesh, range0_m=range0_m, dr_m=dr_m, dx_m=dx_m, rows=rows,
+                                                        cols=cols, altitude_m=altitude_m)
+    if w is None:
         return _empty()
+    H = float(altitude_m)
+    tri, normals, lo = w.tri, w.normals, w.lo
+    i0, i1, c0, c1, cs0, cs1 = w.i0, w.i1, w.c0, w.c1, w.cs0, w.cs1
+    edge0 = range0_m - dr_m / 2
     nr, nc = i1 - i0, c1 - c0
 
     # Sub-ray planes (s,) and seabed points (q,).

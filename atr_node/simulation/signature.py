@@ -64,6 +64,16 @@ def along_track_kernel(range_m: float, *, dx_m: float, sensor: SensorSettings, o
     return k / k.sum()
 
 
+def blurred_footprint(footprint: tuple[int, int, int, int], kernel: np.ndarray, rows: int
+                      ) -> tuple[int, int, int, int]:
+    """The footprint :func:`blur_along_track` gives a signature of ``footprint`` (non-empty)."""
+    r0, r1, c0, c1 = footprint
+    if kernel.size == 1:
+        return footprint
+    h = kernel.size // 2
+    return max(r0 - h, 0), min(r1 + h, rows), c0, c1
+
+
 def blur_along_track(sig: Signature, kernel: np.ndarray, rows: int) -> Signature:
     """Convolve a signature's maps along-track (rows) with ``kernel``, growing the window by
     the kernel's half-length (clipped to the tile's ``rows``)."""

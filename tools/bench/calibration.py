@@ -21,6 +21,15 @@
    independent injected set within the Wilson interval in >= 90 % of range bins", repeated
    over N seeds (the test in tests/calibration runs one), to show its spread.
 
+4. Part ``online`` (issue 19): the node's on-line calibration on a generated mission
+   (``atr-node simulate --seed 1``: the node calibrates on its first 8 tiles of 256 pings, 10
+   iterations of 40 targets): the calibration's time and traces, then ``atr-node replay
+   --speed max`` with on-line calibration on and off, each run in a fresh process, and the
+   ratio of their medians (target: at most 3).
+
+    python tools/bench/calibration.py image      # parts 1-3 (what the options above do)
+    python tools/bench/calibration.py online [--runs 3] [--quick]
+
 Figures depend on the machine's load: say so when quoting them.
 """
 
@@ -58,6 +67,76 @@ def run_once(settings, *, rows, cols, iterations, targets, seed, seabed):
 
 
 def main(argv: list[str] | None = None) -> int:
+    return harness.subject_main(__doc__, {"image": main_image, "online": main_online}, argv)
+
+
+def main_online(argv: list[str] | None = None) -> int:
+    """Part 4: the node's on-line calibration and the replay with it on and off."""
+    import subprocess
+    import tempfile
+
+    from atr_node.calibration.sources import images_from_recording
+    from atr_node.config import Settings
+    from atr_node.simulation import inject
+    from atr_node.simulation.mission import generate_mission
+
+    ap = argparse.ArgumentParser(description=main_online.__doc__)
+    ap.add_argument("--runs", type=int, default=3, help="replays of each kind, each in a fresh process")
+    ap.add_argument("--quick", action="store_true", help="2 tiles, 2 iterations, one run each")
+    args = ap.parse_args(argv)
+    settings = Settings()
+    cal = settings.calibration
+    tiles, iters, runs = (2, 2, 1) if args.quick else (cal.online_tiles, cal.online_iterations, args.runs)
+    traced = []
+    real_trace = inject.trace
+
+    def counting(*a, **k):
+        traced.append(1)
+        return real_trace(*a, **k)
+
+    with tempfile.TemporaryDirectory() as tmp:
+        files = generate_mission(settings, Path(tmp) / "m", seed=1)
+        images = images_from_recording(files.atrlog, settings=settings, max_images=tiles)
+        inject.trace = counting
+        try:
+            t0 = time.perf_counter()
+            resp = collect_responses(images, settings=settings, iterations=iters, targets_per_image=cal.targets_per_image,
+                                     seed=cal.seed)
+            t_cal = time.perf_counter() - t0
+        finally:
+            inject.trace = real_trace
+        harness.record(f"on-line calibration: {len(images)} tiles x {iters} iterations (one core)", [t_cal], clock="wall")
+        harness.value("on-line calibration: signatures placed", int(resp.n_targets))
+        harness.value("on-line calibration: ray traces", len(traced))
+        print(f"on-line calibration of {len(images)} tiles x {iters} iterations: {t_cal:.2f} s, "
+              f"{resp.n_targets} targets placed, {len(traced)} traces (target: 5 s)")
+        med = {}
+        for mode in ("on", "off"):
+            samples = []
+            for _ in range(runs):
+                cmd = [sys.executable, "-m", "atr_node", "replay", str(files.atrlog), "--publish", "none",
+                       "--speed", "max", "--quiet", "--online-calibration", mode]
+                if args.quick:
+                    cmd += ["--config", str(_quick_config(Path(tmp), tiles, iters))]
+                t0 = time.perf_counter()
+                subprocess.run(cmd, check=True, capture_output=True)
+                samples.append(time.perf_counter() - t0)
+            med[mode] = harness.record(f"replay --speed max, on-line calibration {mode} (whole command)", samples,
+                                       clock="wall").median_s
+            print(f"replay, on-line calibration {mode}: " + " ".join(f"{x:.2f}" for x in samples) + " s")
+        harness.value("replay on / off (medians)", med["on"] / med["off"])
+        print(f"on / off: {med['on'] / med['off']:.2f} (target: at most 3)")
+    return 0
+
+
+def _quick_config(folder: Path, tiles: int, iters: int) -> Path:
+    p = folder / "quick.toml"
+    p.write_text(f"[calibration]\nonline_tiles = {tiles}\nonline_iterations = {iters}\n")
+    return p
+
+
+def main_image(argv: list[str] | None = None) -> int:
+    """Parts 1-3: a 2000-signature calibration of a synthetic image, error against run time."""
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", default=None)
     ap.add_argument("--rows", type=int, default=2048)
