@@ -484,14 +484,6 @@ class NodeSettings:
     core idles; off = the main process only waits. Not used live (scoring in the main process
     there made the worst tile latency longer: both sides of a ping then score and fuse in
     series)."""
-
-    max_tile_pixels: int = 1 << 23
-    """Largest tile (rows x cols, after a slant tile's conversion to ground range) the node takes:
-    beyond it the tile is refused, counted under ``tile field shape`` (or the nav merge's ``slant
-    range axis too long``), before its pixels are converted. Detection and fusion take about
-    225 MiB plus 80 B per pixel of the largest tile (``docs/reliability.md``, memory budget): the
-    default 8 Mpx (2^23) peaks near 0.9 GiB, within the node's 2 GiB budget with room for the
-    evidence grid; the wire format's own limit is 2^28."""
     live_main_scores: bool = True
     """Live mode: while the worker scores one unit, the next ones wait in the main process,
     which scores them itself whenever it is idle: the second side of a ping no longer waits

@@ -207,11 +207,12 @@ def _population(settings: Any) -> Any:
 
 def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, targets_per_image: int,
                   rng: np.random.Generator, enabled: Sequence[str] | None = None,
-                  progress: Callable[[], None] | None = None) -> Responses:
+                  progress: Callable[[], None] | None = None, scoring: str = "auto") -> Responses:
     """Responses of one image: non-target cells of the clean image, then ``iterations`` rounds
     of ``targets_per_image`` injected targets.
 
-    Lazy scoring: the clean image is scored once. Each injected target is scored on a crop:
+    Lazy scoring: the clean image is scored once. Each injected target is scored on a crop
+    (or, where the crops together cover more than the image, the injected image once):
     its template window of anchors grown by the windows' reach, with the clean image's
     per-range background b(j) and median m(j). Every window of every anchor in that template
     window then reads exactly the pixels it reads in the whole image, so the response equals
@@ -228,7 +229,13 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
         Draws every placement and the speckle of the signatures.
     progress : callable, optional
         Called once after each iteration.
+    scoring : {"auto", "crops", "whole"}
+        How the injected targets are scored: ``"crops"`` each on its crop; ``"whole"`` the
+        whole injected image once an iteration; ``"auto"`` the whole image when the crops
+        together cover at least its area (the same responses to rounding, for less work).
     """
+    if scoring not in ("auto", "crops", "whole"):
+        raise ValueError(f"scoring must be 'auto', 'crops' or 'whole', got {scoring!r}")
     from ..detectors.background import column_mean, column_median
     from ..detectors.engine import score_maps
     from ..detectors.windows import window_geometry
@@ -257,6 +264,7 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
         injected, placed = inject_targets(px, range0_m=image.range0_m, n_targets=targets_per_image, rng=rng,
                                           sensor=settings.sensor, simulation=settings.simulation,
                                           template=settings.template, g=g, population=population, **geo)
+        crops = []
         for t in placed:
             i, j = int(t.row), int(t.col)
             s_j = int(geom.shadow_px[min(max(j, 0), cols - 1)])
@@ -265,9 +273,20 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
             a_c0, a_c1 = j - geom.echo_px, j + s_j
             r0, r1 = max(0, a_r0 - up), min(rows, a_r1 + down)
             c0, c1 = max(0, a_c0 - left), min(cols, a_c1 + right)
-            crop = injected[r0:r1, c0:c1]
-            sc = score_maps(crop, range0_m=image.range0_m + c0 * image.dr_m, background=b[c0:c1],
-                            median=m[c0:c1], **geo, **common)
+            crops.append((t, i, j, s_j, r0, r1, c0, c1))
+        # The crops together cover more than the image (a short tile full of targets: the
+        # node's on-line calibration): one scoring of the whole image costs less, and gives
+        # what each crop gives, to rounding (the crops read exactly their windows' pixels).
+        whole = None
+        if scoring == "whole" or (scoring == "auto" and sum((r1 - r0) * (c1 - c0) for *_, r0, r1, c0, c1 in crops)
+                                  >= rows * cols):
+            whole = score_maps(injected, range0_m=image.range0_m, background=b, median=m, **geo, **common)
+        for t, i, j, s_j, r0, r1, c0, c1 in crops:
+            if whole is not None:
+                sc, r0, c0 = whole, 0, 0
+            else:
+                sc = score_maps(injected[r0:r1, c0:c1], range0_m=image.range0_m + c0 * image.dr_m,
+                                background=b[c0:c1], median=m[c0:c1], **geo, **common)
             for d in dets:
                 target[d].append(window_max(sc[d], i - r0, j - c0, row0=geom.row0, length_px=geom.length_px,
                                             echo_px=geom.echo_px, shadow_px=s_j))

@@ -174,3 +174,26 @@ def test_images_without_room_for_a_target_are_refused():
     empty = CalibrationImage(np.full((400, 400), np.nan, np.float32), 30.0, 0.1, 0.1, 14.0, name="all-nan")
     with pytest.raises(AtrError, match="no image has room"):
         collect_responses([tiny, empty], settings=s, iterations=1, targets_per_image=2, seed=0)
+
+
+def test_whole_image_scoring_gives_the_crops_responses(seabed_image):
+    """A small image crowded with targets: scoring the injected image once per iteration (what
+    ``scoring="auto"`` picks when the crops cover more than the image) gives each target the
+    response its crop gives, to rounding; the same draws, so the same targets and traits."""
+    s = Settings()
+    im = seabed_image
+    kw = dict(settings=s, iterations=2, targets_per_image=12)
+    crops = collect_image(im, rng=np.random.default_rng(5), scoring="crops", **kw)
+    whole = collect_image(im, rng=np.random.default_rng(5), scoring="whole", **kw)
+    auto = collect_image(im, rng=np.random.default_rng(5), **kw)
+    assert crops.n_targets >= 6
+    np.testing.assert_array_equal(crops.target_range_m, whole.target_range_m)
+    assert crops.target_shape == whole.target_shape == auto.target_shape
+    for k in crops.target_traits:
+        np.testing.assert_array_equal(crops.target_traits[k], whole.target_traits[k])
+    for d in s.detectors.enabled:
+        np.testing.assert_allclose(whole.target[d], crops.target[d], rtol=1e-9, atol=1e-12)
+        assert np.array_equal(auto.target[d], whole.target[d], equal_nan=True) or \
+            np.array_equal(auto.target[d], crops.target[d], equal_nan=True)
+    with pytest.raises(ValueError, match="scoring"):
+        collect_image(im, rng=np.random.default_rng(5), scoring="sometimes", **kw)

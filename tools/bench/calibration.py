@@ -25,7 +25,8 @@
    (``atr-node simulate --seed 1``: the node calibrates on its first 8 tiles of 256 pings, 10
    iterations of 40 targets): the calibration's time and traces, then ``atr-node replay
    --speed max`` with on-line calibration on and off, each run in a fresh process, and the
-   ratio of their medians (target: at most 3).
+   ratio of their medians (target: at most 3); then the time from Ctrl-C (SIGINT to the
+   process group) to the exit of a replay waiting for a long calibration (target: 2 s).
 
     python tools/bench/calibration.py image      # parts 1-3 (what the options above do)
     python tools/bench/calibration.py online [--runs 3] [--quick]
@@ -126,7 +127,41 @@ def main_online(argv: list[str] | None = None) -> int:
             print(f"replay, on-line calibration {mode}: " + " ".join(f"{x:.2f}" for x in samples) + " s")
         harness.value("replay on / off (medians)", med["on"] / med["off"])
         print(f"on / off: {med['on'] / med['off']:.2f} (target: at most 3)")
+        samples = [_ctrl_c_once(files.atrlog, Path(tmp), k) for k in range(runs)]
+        harness.record("Ctrl-C while a replay waits for the on-line model: SIGINT to exit", samples, clock="wall")
+        print("Ctrl-C while waiting for the model, to exit: " + " ".join(f"{x:.2f}" for x in samples)
+              + " s (target: 2 s)")
     return 0
+
+
+def _ctrl_c_once(log: Path, folder: Path, k: int) -> float:
+    """Seconds from SIGINT to the process group (as a terminal sends it) to the exit of a
+    replay waiting for a long on-line calibration, its state snapshotted (exit 130)."""
+    import os
+    import signal
+    import subprocess
+
+    conf = folder / "slow.toml"
+    conf.write_text("[calibration]\nonline_iterations = 3000\n")
+    p = subprocess.Popen([sys.executable, "-m", "atr_node", "-v", "replay", str(log), "--config", str(conf),
+                          "--publish", "none", "--state-dir", str(folder / f"ctrl_c_{k}")],
+                         stderr=subprocess.PIPE, text=True, start_new_session=True)
+    t0 = None
+    try:
+        for line in p.stderr:
+            if "waiting for the model from" in line:
+                time.sleep(1.0)  # well into the wait
+                t0 = time.perf_counter()
+                os.killpg(p.pid, signal.SIGINT)
+                break
+        p.stderr.read()
+        rc = p.wait(timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    if t0 is None or rc != 130:
+        raise RuntimeError(f"Ctrl-C run {k}: exit {rc}, {'no' if t0 is None else 'a'} wait for the model seen")
+    return time.perf_counter() - t0
 
 
 def _quick_config(folder: Path, tiles: int, iters: int) -> Path:
