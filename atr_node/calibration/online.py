@@ -11,7 +11,10 @@ When the node switches:
 
 - replay (``deterministic=True``): the node holds its tiles (offered, not yet processed)
   until the worker has its ``online_tiles`` images, or the input ends first (a short
-  recording); it then waits for the model (:meth:`OnlineCalibrator.wait`) and processes every
+  recording); it then waits for the model (:meth:`OnlineCalibrator.wait`), collecting the odd
+  images' responses itself meanwhile while the worker collects the even ones (both cores work;
+  image k draws from the stream ``(seed, k)``, so the model is the one a single process makes),
+  and processes every
   tile, the held ones first, with it. The switch point, "after image N", depends only on the
   record sequence, so the same log and config always give the same contacts whatever the
   machine's speed, and every tile of a recording, however short, uses the on-line model. If
@@ -48,10 +51,13 @@ WORKER_NICE = 10
 """Niceness added to the worker process."""
 
 
-def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any, progress: Any = None) -> None:
+def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any, progress: Any = None,
+            share: bool = False) -> None:
     """Worker process: gather ``n_tiles`` images (or fewer before a stop), calibrate, reply
     ``("model", body)`` or ``("error", message)``; ``progress`` (a shared array of two ints):
-    the injection rounds done and to do, for the node's progress line."""
+    the injection rounds done and to do, for the node's progress line. ``share`` (replay): the
+    node, which waits meanwhile, collects the odd images itself; the worker collects the even
+    ones and replies ``("parts", {image index: responses})``."""
     try:
         # Below the node's priority: on a 2-core vehicle computer tile processing comes first.
         os.nice(WORKER_NICE)
@@ -65,7 +71,7 @@ def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any, progress
     logging.disable(logging.WARNING)
     try:
         from .estimate import estimate_model
-        from .responses import collect_responses
+        from .responses import collect_parts, collect_responses, usable_images
 
         images: list[CalibrationImage] = []
         parent = mp.parent_process()
@@ -84,10 +90,24 @@ def _worker(settings: Settings, n_tiles: int, tiles: Any, results: Any, progress
             results.put(("error", "no tile to calibrate on"))
             return
         cal = settings.calibration
+
         def tick(done: int, total: int) -> None:
             if progress is not None:
                 progress[1], progress[0] = total, done
 
+        if share:
+            usable, _skipped = usable_images(images, settings=settings)
+            mine = list(range(0, len(usable), 2))
+            rounds = [0]
+
+            def step() -> None:
+                rounds[0] += 1
+                tick(rounds[0], cal.online_iterations * len(usable))
+
+            results.put(("parts", collect_parts(usable, settings=settings, iterations=cal.online_iterations,
+                                                targets_per_image=cal.targets_per_image, seed=cal.seed, which=mine,
+                                                progress=step)))
+            return
         resp = collect_responses(images, settings=settings, iterations=cal.online_iterations,
                                  targets_per_image=cal.targets_per_image, seed=cal.seed, progress=tick)
         model = estimate_model(resp, calibration=cal, thresholds=settings.detectors.threshold,
@@ -156,8 +176,12 @@ class OnlineCalibrator:
         self._tiles = ctx.Queue(maxsize=self.n_tiles + 1)
         self._results = ctx.Queue(maxsize=1)
         self._progress = ctx.Array("i", 2, lock=False)  # rounds done, rounds to do (one writer)
+        self._held: list[Any] = []
+        """Replay: the tiles offered, for the node's own share of the images (:meth:`wait`)."""
+        self._main_parts: dict[int, Any] = {}
+        self._main_rounds = 0
         self._proc = ctx.Process(target=_worker, args=(settings, self.n_tiles, self._tiles, self._results,
-                                                       self._progress),
+                                                       self._progress, deterministic),
                                  name="atr-online-calibration", daemon=True)
         _start_ignoring_sigint(self._proc)
         self._done = False
@@ -166,7 +190,13 @@ class OnlineCalibrator:
     def progress(self) -> tuple[int, int]:
         """(injection rounds done, rounds to do) of the worker's calibration: one round is
         one iteration on one image; (0, 0) before it starts injecting."""
-        return int(self._progress[0]), int(self._progress[1])
+        return int(self._progress[0]) + self._main_rounds, int(self._progress[1])
+
+    @property
+    def rounds_here(self) -> int:
+        """Replay: injection rounds the node's own process did while it waited (its share of
+        the images, :meth:`wait`); 0 live."""
+        return self._main_rounds
 
     @property
     def model(self) -> PerformanceModel:
@@ -205,6 +235,8 @@ class OnlineCalibrator:
         # The queue's feeder thread pickles the tile in the background: records are never
         # modified after they are made, so no copy is needed here.
         self._tiles.put_nowait(tile)
+        if self.deterministic:
+            self._held.append(tile)
 
     def end_of_input(self) -> None:
         """No more tiles will come: calibrate on those offered so far."""
@@ -242,11 +274,15 @@ class OnlineCalibrator:
         self.end_of_input()
         deadline = time.monotonic() + self.timeout_s
         self._poll(None)
-        if self._pending is None:
+        if self._pending is None or self._pending[0] == "parts":
             log.info("on-line calibration: waiting for the model from %d tile(s)", self._offered)
             self.waiting_since = time.monotonic()
         try:
+            # the worker may have sent its parts already: the node's share is still to do
+            if (self._pending is None or self._pending[0] == "parts") and not self._share(stop):
+                return False  # a stop request during the node's own share: nothing taken
             self._wait_for_answer(stop, deadline, poll_s)
+            self._pool()
         finally:
             self.waiting_since = None
         if stop is not None and self._pending is None and stop():
@@ -257,6 +293,66 @@ class OnlineCalibrator:
             return False
         self._take(from_tile)
         return True
+
+    def _images(self) -> list[CalibrationImage]:
+        alt = self.settings.sensor.altitude_m
+        return [CalibrationImage.from_tile(t, altitude_m=alt) for t in self._held]
+
+    def _share(self, stop: Callable[[], bool] | None) -> bool:
+        """Replay: while the worker collects the even images, collect the odd ones here (both
+        cores would otherwise wait for the worker). The same parts as one process makes (image
+        k draws from the stream ``(seed, k)``). False when ``stop()`` asked to stop (checked
+        after every iteration; the parts done are kept for the next call)."""
+        from .responses import collect_parts, usable_images
+
+        cal = self.settings.calibration
+        try:
+            usable, _ = usable_images(self._images(), settings=self.settings)
+        except Exception:  # the worker meets the same and says so
+            return True
+
+        class _Stopped(Exception):
+            pass
+
+        def step() -> None:
+            self._main_rounds += 1
+            if stop is not None and stop():
+                raise _Stopped
+
+        for k in range(1, len(usable), 2):
+            if k in self._main_parts:
+                continue
+            before = self._main_rounds
+            try:
+                self._main_parts.update(collect_parts(usable, settings=self.settings, iterations=cal.online_iterations,
+                                                      targets_per_image=cal.targets_per_image, seed=cal.seed,
+                                                      which=[k], progress=step))
+            except _Stopped:
+                self._main_rounds = before
+                return False
+        return True
+
+    def _pool(self) -> None:
+        """The worker's parts and the node's own into the model (replay), as ``("model", body)``
+        or ``("error", message)`` in the pending answer."""
+        if self._pending is None or self._pending[0] != "parts":
+            return
+        from .estimate import estimate_model
+        from .responses import pool_parts, usable_images
+
+        cal = self.settings.calibration
+        try:
+            images = self._images()
+            usable, skipped = usable_images(images, settings=self.settings)
+            parts = {**self._pending[1], **self._main_parts}
+            resp = pool_parts(parts, n_usable=len(usable), skipped=skipped, settings=self.settings,
+                              iterations=cal.online_iterations, targets_per_image=cal.targets_per_image, seed=cal.seed)
+            model = estimate_model(resp, calibration=cal, thresholds=self.settings.detectors.threshold,
+                                   provenance={"source": "on-line", "offered_images": [im.name for im in images]})
+            self._pending = ("model", model.to_dict())
+        except Exception as exc:  # as the worker would report it
+            self._pending = ("error", f"{type(exc).__name__}: {exc}")
+        self._held, self._main_parts = [], {}
 
     def _wait_for_answer(self, stop, deadline: float, poll_s: float) -> None:
         while self._pending is None:

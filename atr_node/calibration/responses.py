@@ -319,11 +319,9 @@ def _room_for_targets(image: CalibrationImage, settings: Any) -> bool:
     return rows >= 2 * ctx_rows and cols >= ctx_cols and bool(np.isfinite(image.pixels).any())
 
 
-def collect_responses(images: Sequence[CalibrationImage], *, settings: Any, iterations: int,
-                      targets_per_image: int, seed: int, enabled: Sequence[str] | None = None,
-                      progress: ProgressFn | None = None) -> Responses:
-    """Responses of several images pooled (SPEC section 5); image k draws from the random
-    stream ``(seed, k)``, so the result depends only on the images, settings and seed."""
+def usable_images(images: Sequence[CalibrationImage], *, settings: Any) -> tuple[list[CalibrationImage], list[str]]:
+    """(the images with room for a target and its context window, the names of the others);
+    the others are logged, and none usable raises :class:`AtrError`."""
     if not images:
         raise ValueError("collect_responses: no image to calibrate on")
     usable = [im for im in images if _room_for_targets(im, settings)]
@@ -334,8 +332,45 @@ def collect_responses(images: Sequence[CalibrationImage], *, settings: Any, iter
     if not usable:
         raise AtrError(f"calibration: no image has room for a target and its context window "
                        f"({len(images)} image(s), e.g. {images[0].name} {images[0].pixels.shape})")
-    images = usable
-    total = iterations * len(images)
+    return usable, skipped
+
+
+def collect_parts(usable: Sequence[CalibrationImage], *, settings: Any, iterations: int, targets_per_image: int,
+                  seed: int, which: Sequence[int] | None = None, enabled: Sequence[str] | None = None,
+                  progress: Callable[[], None] | None = None) -> dict[int, Responses]:
+    """The responses of usable images ``which`` (indices into ``usable``; all by default),
+    image k drawing from the random stream ``(seed, k)``: any split of the images between
+    processes gives the parts one process gives. ``progress()`` after each iteration."""
+    ks = range(len(usable)) if which is None else which
+    return {k: collect_image(usable[k], settings=settings, iterations=iterations, targets_per_image=targets_per_image,
+                             rng=np.random.default_rng([seed, k]), enabled=enabled, progress=progress)
+            for k in ks}
+
+
+def pool_parts(parts: Mapping[int, Responses], *, n_usable: int, skipped: Sequence[str], settings: Any,
+               iterations: int, targets_per_image: int, seed: int) -> Responses:
+    """The pooled responses of every usable image's part (:func:`collect_parts`), in image
+    order, with the calibration's provenance: what :func:`collect_responses` returns."""
+    if sorted(parts) != list(range(n_usable)):
+        raise ValueError(f"pool_parts: parts of images {sorted(parts)}, expected 0..{n_usable - 1}")
+    ordered = [parts[k] for k in range(n_usable)]
+    out = Responses.concat(ordered)
+    prov = dict(out.provenance)
+    prov.update({"images": [n for p in ordered for n in p.provenance["images"]], "iterations": iterations,
+                 "targets_per_image": targets_per_image, "seed": seed, "skipped_images": list(skipped)})
+    prov.update(_settings_provenance(settings))
+    prov["population"]["n_nominal"] = int(out.nominal.sum())
+    return Responses(out.detectors, out.target, out.nontarget, out.target_range_m, out.target_shape, prov,
+                     out.target_traits)
+
+
+def collect_responses(images: Sequence[CalibrationImage], *, settings: Any, iterations: int,
+                      targets_per_image: int, seed: int, enabled: Sequence[str] | None = None,
+                      progress: ProgressFn | None = None) -> Responses:
+    """Responses of several images pooled (SPEC section 5); image k draws from the random
+    stream ``(seed, k)``, so the result depends only on the images, settings and seed."""
+    usable, skipped = usable_images(images, settings=settings)
+    total = iterations * len(usable)
     done = [0]
 
     def tick() -> None:
@@ -343,14 +378,7 @@ def collect_responses(images: Sequence[CalibrationImage], *, settings: Any, iter
         if progress is not None:
             progress(done[0], total)
 
-    parts = [collect_image(im, settings=settings, iterations=iterations, targets_per_image=targets_per_image,
-                           rng=np.random.default_rng([seed, k]), enabled=enabled, progress=tick)
-             for k, im in enumerate(images)]
-    out = Responses.concat(parts)
-    prov = dict(out.provenance)
-    prov.update({"images": [n for p in parts for n in p.provenance["images"]], "iterations": iterations,
-                 "targets_per_image": targets_per_image, "seed": seed, "skipped_images": skipped})
-    prov.update(_settings_provenance(settings))
-    prov["population"]["n_nominal"] = int(out.nominal.sum())
-    return Responses(out.detectors, out.target, out.nontarget, out.target_range_m, out.target_shape, prov,
-                     out.target_traits)
+    parts = collect_parts(usable, settings=settings, iterations=iterations, targets_per_image=targets_per_image,
+                          seed=seed, enabled=enabled, progress=tick)
+    return pool_parts(parts, n_usable=len(usable), skipped=skipped, settings=settings, iterations=iterations,
+                      targets_per_image=targets_per_image, seed=seed)

@@ -47,6 +47,7 @@ def test_replay_waits_for_the_model_of_its_images_and_it_equals_an_in_process_on
         assert oc.offered == 2 and not oc.gathering and not oc.done
         assert oc.wait() and oc.done
         assert oc.progress == (4, 4)  # 2 images x 2 iterations: every injection round reported
+        assert oc.rounds_here == 2  # the second image's, by this process while it waited
         assert oc.switched_at == 1 and oc.error is None and oc.images == 2
         online = oc.model
         assert oc.model_for(7) is online
