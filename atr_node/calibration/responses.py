@@ -232,7 +232,9 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
     scoring : {"auto", "crops", "whole"}
         How the injected targets are scored: ``"crops"`` each on its crop; ``"whole"`` the
         whole injected image once an iteration; ``"auto"`` the whole image when the crops
-        together cover at least its area (the same responses to rounding, for less work).
+        together cover at least its area (the same responses to rounding, for less work; with
+        ``detectors.decimation`` > 1 the sampled pixels align to the image instead of to each
+        crop, as they align to the unit in the node).
     """
     if scoring not in ("auto", "crops", "whole"):
         raise ValueError(f"scoring must be 'auto', 'crops' or 'whole', got {scoring!r}")
