@@ -180,6 +180,7 @@ class OnlineCalibrator:
         """Replay: the tiles offered, for the node's own share of the images (:meth:`wait`)."""
         self._main_parts: dict[int, Any] = {}
         self._main_rounds = 0
+        self._local: tuple | None = None
         self._proc = ctx.Process(target=_worker, args=(settings, self.n_tiles, self._tiles, self._results,
                                                        self._progress, deterministic),
                                  name="atr-online-calibration", daemon=True)
@@ -294,20 +295,28 @@ class OnlineCalibrator:
         self._take(from_tile)
         return True
 
-    def _images(self) -> list[CalibrationImage]:
-        alt = self.settings.sensor.altitude_m
-        return [CalibrationImage.from_tile(t, altitude_m=alt) for t in self._held]
+    def _images(self) -> tuple[list[CalibrationImage], list[CalibrationImage], list[str]]:
+        """(the held tiles as images, the usable ones, the skipped names), made once: the
+        node's share and the pooling read the same."""
+        if self._local is None:
+            from .responses import usable_images
+
+            alt = self.settings.sensor.altitude_m
+            images = [CalibrationImage.from_tile(t, altitude_m=alt) for t in self._held]
+            usable, skipped = usable_images(images, settings=self.settings)
+            self._local = (images, usable, skipped)
+        return self._local
 
     def _share(self, stop: Callable[[], bool] | None) -> bool:
         """Replay: while the worker collects the even images, collect the odd ones here (both
         cores would otherwise wait for the worker). The same parts as one process makes (image
         k draws from the stream ``(seed, k)``). False when ``stop()`` asked to stop (checked
         after every iteration; the parts done are kept for the next call)."""
-        from .responses import collect_parts, usable_images
+        from .responses import collect_parts
 
         cal = self.settings.calibration
         try:
-            usable, _ = usable_images(self._images(), settings=self.settings)
+            _, usable, _ = self._images()
         except Exception:  # the worker meets the same and says so
             return True
 
@@ -338,12 +347,11 @@ class OnlineCalibrator:
         if self._pending is None or self._pending[0] != "parts":
             return
         from .estimate import estimate_model
-        from .responses import pool_parts, usable_images
+        from .responses import pool_parts
 
         cal = self.settings.calibration
         try:
-            images = self._images()
-            usable, skipped = usable_images(images, settings=self.settings)
+            images, usable, skipped = self._images()
             parts = {**self._pending[1], **self._main_parts}
             resp = pool_parts(parts, n_usable=len(usable), skipped=skipped, settings=self.settings,
                               iterations=cal.online_iterations, targets_per_image=cal.targets_per_image, seed=cal.seed)
@@ -352,7 +360,7 @@ class OnlineCalibrator:
             self._pending = ("model", model.to_dict())
         except Exception as exc:  # as the worker would report it
             self._pending = ("error", f"{type(exc).__name__}: {exc}")
-        self._held, self._main_parts = [], {}
+        self._held, self._main_parts, self._local = [], {}, None
 
     def _wait_for_answer(self, stop, deadline: float, poll_s: float) -> None:
         while self._pending is None:

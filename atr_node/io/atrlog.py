@@ -260,12 +260,8 @@ class AtrLogReader:
             if start >= size:
                 break
             end, text = None, ""
-            if kind == TOO_LONG:
-                end = _walk_frame_end(fh, start, size) if _RECORD_HEAD.match(_peek(fh, start)) else None
-                text = (f"record at byte {start} rejected: {kind}: {why}"
-                        + (f" ({end - start} bytes skipped)" if end is not None else ""))
-            elif kind in (UNDECODABLE_STR, UNHASHABLE_KEY):
-                end = _record_frame_end(fh, start)
+            if kind in (TOO_LONG, UNDECODABLE_STR, UNHASHABLE_KEY):  # skipped by its headers, not decoded
+                end = _record_frame_end(fh, start, size)
                 text = f"record at byte {start} rejected: {kind}: {why} ({(end or start) - start} bytes skipped)"
             elif kind in CHECK_REASONS:
                 end, text = frame_end, f"record at byte {start} rejected: {why}"
@@ -370,15 +366,14 @@ def _decode_at(fh: BinaryIO, offset: int, limit: int = MAX_RECORD_BYTES) -> tupl
     return obj, offset + u.tell()
 
 
-def _record_frame_end(fh: BinaryIO, offset: int) -> int | None:
+def _record_frame_end(fh: BinaryIO, offset: int, size: int) -> int | None:
     """End of the frame at ``offset`` when it is framed as a record (a map whose first key is
     "t", "link" or "msg") and whole; None otherwise. The frame is stepped over from its headers
     (:func:`_walk_frame_end`), not built, so bad UTF-8 or an unhashable key inside it do not
     matter, and its size costs no memory."""
     if not _RECORD_HEAD.match(_peek(fh, offset)):
         return None
-    fh.seek(0, os.SEEK_END)
-    return _walk_frame_end(fh, offset, fh.tell())
+    return _walk_frame_end(fh, offset, size)
 
 
 _FIXED = {0xc0: 0, 0xc2: 0, 0xc3: 0, 0xca: 4, 0xcb: 8, 0xcc: 1, 0xcd: 2, 0xce: 4, 0xcf: 8, 0xd0: 1, 0xd1: 2,

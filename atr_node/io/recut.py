@@ -22,7 +22,6 @@ and, with ``--truth``, each file's Pd at ``fusion.report_bel``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -135,35 +134,21 @@ def recut_file(src: str | Path, dst: str | Path, sizes: Sizes) -> int:
 
 # -- comparing two runs' contacts ------------------------------------------------------------
 def read_contacts(path: str | Path) -> list[dict[str, Any]]:
-    """The contacts of an ``atr-node replay --contacts-out`` file (withdrawn ones left out)."""
-    out = []
-    for n, line in enumerate(Path(path).read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            c = json.loads(line)
-        except ValueError:
-            raise AtrError(f"{path}:{n}: not a JSON line") from None
-        if c.get("state") != "withdrawn":
-            out.append(c)
-    return out
+    """The live contacts of an ``atr-node replay --contacts-out`` file, each in its latest state
+    (:func:`atr_node.operators.book.read_contacts`: checked against the ICD, withdrawn ones left out)."""
+    from ..operators.book import read_contacts as read_book
+
+    return read_book(path).contacts()
 
 
 def match_contacts(a: list[dict], b: list[dict], gate_m: float) -> list[tuple[int, int, float]]:
-    """One-to-one matches (index in a, index in b, distance m), nearest pairs first, within ``gate_m``."""
-    if not a or not b:
-        return []
-    pa = np.array([[c["east_m"], c["north_m"]] for c in a], dtype=np.float64)
-    pb = np.array([[c["east_m"], c["north_m"]] for c in b], dtype=np.float64)
-    d = np.hypot(pa[:, None, 0] - pb[None, :, 0], pa[:, None, 1] - pb[None, :, 1])
-    pairs = sorted((float(d[i, j]), i, j) for i, j in zip(*np.nonzero(d <= gate_m)))
-    used_a, used_b, out = set(), set(), []
-    for dist, i, j in pairs:
-        if i not in used_a and j not in used_b:
-            used_a.add(i)
-            used_b.add(j)
-            out.append((int(i), int(j), dist))
-    return out
+    """One-to-one matches (index in a, index in b, distance m) within ``gate_m``: the
+    evaluation's maximum matching (:func:`atr_node.evaluation.scoring.match`)."""
+    from ..evaluation.scoring import match
+
+    pa = np.array([[c["east_m"], c["north_m"]] for c in a], dtype=np.float64).reshape(-1, 2)
+    pb = np.array([[c["east_m"], c["north_m"]] for c in b], dtype=np.float64).reshape(-1, 2)
+    return [(i, j, float(np.hypot(*(pa[i] - pb[j])))) for i, j in match(pa, pb, radius_m=gate_m)]
 
 
 def compare(a: list[dict], b: list[dict], *, gate_m: float = 1.0) -> dict[str, Any]:

@@ -474,7 +474,7 @@ class Pipeline:
             self.strips.geometry = self._strip_geometry
         self.tiles_merged += 1
         # the live queue's limit counts tiles: units of the latest tile's length (node.queue_tiles)
-        self._units_per_tile = max(1, math.ceil(tile.rows / max(1, round(self.settings.node.unit_length_m / tile.dx_m))))
+        self._units_per_tile = max(1, math.ceil(tile.rows / self._unit_rows(tile)))
         self.mission = tile.mission  # evidence deltas name their mission (atr_node.node.exchange)
         if self._strip_leg is not None and tile.leg != self._strip_leg:
             # a new leg: end the old leg's strips on both sides before any of the new leg's
@@ -509,8 +509,12 @@ class Pipeline:
         geom = window_geometry(tile.ranges_m[-1:], dr_m=tile.dr_m, dx_m=tile.dx_m,
                                altitude_m=self.settings.sensor.altitude_m, template=self.settings.template)
         margin = required_margin(geom)[0] + int(math.ceil(node.tile_margin_m / tile.dx_m))
-        k = max(1, int(round(node.unit_length_m / tile.dx_m)))
+        k = self._unit_rows(tile)
         return margin, k, max(k, int(round(node.first_unit_length_m / tile.dx_m)))
+
+    def _unit_rows(self, tile: Tile) -> int:
+        """Core rows of a unit of a strip of ``tile``'s ping spacing (``node.unit_length_m``)."""
+        return max(1, int(round(self.settings.node.unit_length_m / tile.dx_m)))
 
     def _unit_pixels(self, shape: tuple[int, int]) -> np.ndarray:
         """Memory for a unit's pixels: a shared-memory slot when units go to the worker in

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -13,8 +12,6 @@ import threading
 import time
 from pathlib import Path
 
-import msgpack
-import numpy as np
 import pytest
 
 from atr_node.calibration.model import PerformanceModel
@@ -55,6 +52,7 @@ sub = Subscriber(sys.argv[1])
 out = open(sys.argv[2], "w")
 deadline = time.monotonic() + 120
 quiet_since = None
+ready = sys.argv[5]
 while time.monotonic() < deadline:
     got = sub.recv(timeout_s=0.5)
     if got is None:
@@ -62,6 +60,9 @@ while time.monotonic() < deadline:
     topic, msg = got
     out.write(json.dumps({"topic": topic, "msg": msg}) + "\n")
     out.flush()
+    if ready:  # a heartbeat got through: the subscription is up (ZeroMQ's slow joiner)
+        open(ready, "w").close()
+        ready = ""
     # every tile in and nothing waiting (a live node keeps the last leg's last rows until the
     # next leg): a couple more heartbeats, then done
     if topic == "heartbeat" and msg.get("tiles_in", 0) >= int(sys.argv[4]) and msg.get("queue_depth", 1) == 0:
@@ -87,19 +88,25 @@ def test_hil_replay_through_pty_can_zmq_into_the_node(mission, tmp_path):
     nmea_out = PtyNmeaOut()
     can_out = CanBusOut("virtual", "atr-e2e-test")
     tile_out = ZmqTileOut("tcp://127.0.0.1:*", socket="push")
-    links = [open_link(nmea_out.slave_path), open_link(f"can://virtual/atr-e2e-test"),
+    links = [open_link(nmea_out.slave_path), open_link("can://virtual/atr-e2e-test"),
              open_link(tile_out.endpoint, socket="pull")]
     contacts: list[dict] = []
     service = NodeService(settings, model=PerformanceModel.shipped(), mode="live", workers=1,
                           publish="tcp://127.0.0.1:*", on_contact=contacts.append)
     endpoint = service.publisher.endpoint
     received = tmp_path / "received.jsonl"
+    ready = tmp_path / "subscribed"
     sub = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, endpoint, str(received),
-                            str(Path(__file__).resolve().parents[2]), str(n_tiles)])
+                            str(Path(__file__).resolve().parents[2]), str(n_tiles), str(ready)])
     mux = LinkMux(links)
     node = threading.Thread(target=service.run_live, args=(mux,), daemon=True)
     node.start()
-    time.sleep(1.0)  # the subscriber's connection is up before the first contact
+    # the subscriber has a heartbeat before the first contact can be published: an event, not a
+    # guess at how long a loaded machine takes to start a Python process and subscribe
+    deadline = time.monotonic() + 120
+    while not ready.exists():
+        assert time.monotonic() < deadline and sub.poll() is None, "the subscriber never got a heartbeat"
+        time.sleep(0.05)
     player = HilPlayer(Paced(ReplayLink(files.atrlog), speed=40.0), nmea=nmea_out, can=can_out, sonar=tile_out)
     counts = player.run()
     try:

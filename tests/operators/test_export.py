@@ -219,7 +219,7 @@ def test_export_from_a_live_node(live_node, tmp_path):
     node = live_node()
     outs = [tmp_path / "live.geojson", tmp_path / "live.kml", tmp_path / "live.csv"]
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "export", "--from", node.endpoint,
-                             "--until-silent", "2", "--include-withdrawn", *sum((["-o", str(p)] for p in outs), [])],
+                             "--until-silent", "5", "--include-withdrawn", *sum((["-o", str(p)] for p in outs), [])],
                             stderr=subprocess.PIPE, text=True)
     first = proc.stderr.readline()  # printed once the subscription is known to be up
     assert "node up" in first, first

@@ -122,7 +122,7 @@ def test_monitor_started_mid_run_shows_every_live_contact(live_node, pause_at):
     node = live_node(pause_after=pause_at)
     before = _paused(node)
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "monitor", "--from", node.endpoint, "--plain",
-                             "--refresh", "0.3", "--until-silent", "3", "--rows", "50"],
+                             "--refresh", "0.3", "--until-silent", "5", "--rows", "50"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "COLUMNS": "160"})  # the whole 'received' line
     try:
@@ -153,7 +153,7 @@ def test_export_from_started_mid_run_writes_every_live_contact(live_node, pause_
     before = _paused(node)
     out = tmp_path / "live.geojson"
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "export", "--from", node.endpoint,
-                             "--until-silent", "3", "-o", str(out)], stderr=subprocess.PIPE, text=True)
+                             "--until-silent", "5", "-o", str(out)], stderr=subprocess.PIPE, text=True)
     try:
         _read_until(proc.stderr, "node up")  # first heartbeat: the snapshot is asked right after it
         deadline = time.monotonic() + 30
@@ -186,7 +186,7 @@ def test_exwpt_started_mid_run_sends_the_live_contacts_first(live_node, pause_at
     reader = threading.Thread(target=_pty_reader, args=(master, lines, stop), daemon=True)
     reader.start()
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "exwpt", "--from", node.endpoint, "--port",
-                             os.ttyname(slave), "--min-move-m", "0", "--min-bel-change", "0", "--until-silent", "3"],
+                             os.ttyname(slave), "--min-move-m", "0", "--min-bel-change", "0", "--until-silent", "5"],
                             stderr=subprocess.PIPE, text=True)
     try:
         _read_until(proc.stderr, "node up")
@@ -220,9 +220,12 @@ def test_a_v1_node_without_the_endpoint_is_followed_after_one_warning(live_node,
     fol = NodeFollower(node.endpoint, snapshot=derived_snapshot_endpoint(node.endpoint), snapshot_timeout_s=0.5)
     try:
         with caplog.at_level(logging.WARNING, logger="atr_node.operators.stream"):
-            deadline = time.monotonic() + 30
+            deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
             while fol.stats.snapshot == "waiting" and time.monotonic() < deadline:
                 fol.poll(0.1)
+            # the subscription is up (a heartbeat got through) before the node goes on: what it
+            # publishes next must all arrive, however slowly a loaded machine joins
+            assert fol.wait_heartbeat(60)
             node.resume_feed.set()
             node.join()
             fol.follow(until_silent_s=1.5)

@@ -136,7 +136,7 @@ def test_monitor_command_against_a_live_node_with_png(live_node, tmp_path):
     node = live_node(state_dir=state)
     png = tmp_path / "belief.png"
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "monitor", "--from", node.endpoint, "--plain",
-                             "--refresh", "0.3", "--until-silent", "2", "--png", str(png), "--png-every", "1",
+                             "--refresh", "0.3", "--until-silent", "5", "--png", str(png), "--png-every", "1",
                              "--state-dir", str(state), "--rows", "50"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 30

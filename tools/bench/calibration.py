@@ -67,8 +67,6 @@ def run_once(settings, *, rows, cols, iterations, targets, seed, seabed):
     return resp, model, np.asarray(stamps) - stamps[0], t_collect, t_est
 
 
-def main(argv: list[str] | None = None) -> int:
-    return harness.subject_main(__doc__, {"image": main_image, "online": main_online}, argv)
 
 
 def main_online(argv: list[str] | None = None) -> int:
@@ -267,6 +265,12 @@ def agreement(settings, n_seeds: int, seabed: str) -> None:
     print(f"mean strict {f[:, 0].mean():.3f} (>= 0.9 in {np.sum(f[:, 0] >= 0.9)} of {len(f)} seeds); "
           f"mean overlap {f[:, 1].mean():.3f} (>= 0.9 in {np.sum(f[:, 1] >= 0.9)} of {len(f)} seeds)")
 
+
+PARTS = {"image": main_image, "online": main_online}
+
+
+def main(argv: list[str] | None = None) -> int:  # a part, every part, or the first with options
+    return harness.subject_main(__doc__, PARTS, argv)
 
 
 if __name__ == "__main__":

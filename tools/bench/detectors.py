@@ -521,15 +521,10 @@ def main_extract(argv: list[str] | None = None) -> int:
     return 1 if args.check and not same_all else 0
 
 
-
 PARTS = {"score": main_score, "extract": main_extract}
-"""Part name -> its entry point (``main(argv) -> int``); the first takes options given
-without a part name."""
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run one part (``PART [options]``), every part (no arguments, or ``--quick``), or the
-    first part with the options given."""
+def main(argv: list[str] | None = None) -> int:  # a part, every part, or the first with options
     return harness.subject_main(__doc__, PARTS, argv)
 
 
