@@ -1,0 +1,111 @@
+"""The tracer as it was before the batched engine (issue 19): every (plane, segment, ray)
+triple tested densely, one target per call. Kept as the reference the signature engine must
+reproduce bit for bit; slow, tests only."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from atr_node.simulation.meshes import Mesh
+from atr_node.errors import GeometryError
+from atr_node.simulation.raytrace import (_PARALLEL_EPS, Signature, TraceWindow, _clip_above_seabed, _empty, slice_mesh,
+                                          trace_window)
+
+
+def dense_trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
+          altitude_m: float, subrays: int = 2, window: TraceWindow | None = None) -> Signature:
+    """Trace a placed target (tile frame, see :func:`~.meshes.place`) into proportion maps.
+
+    Parameters
+    ----------
+    mesh
+        The target in the tile frame (metres).
+    range0_m, dr_m, dx_m
+        Ground range of column 0, range-bin and ping spacing.
+    rows, cols
+        Tile size; the returned window is clipped to it.
+    altitude_m
+        Sensor altitude H above the seabed.
+    subrays
+        k: k x k sub-rays per pixel.
+    window
+        :func:`trace_window` of the same mesh and geometry, when the caller has it already.
+
+    Returns
+    -------
+    Signature
+        Empty when the target is outside the tile or entirely buried.
+    """
+    k = int(subrays)
+    if k < 1:
+        raise GeometryError(f"subrays must be >= 1, got {subrays}")
+    w = window if window is not None else trace_window(mesh, range0_m=range0_m, dr_m=dr_m, dx_m=dx_m, rows=rows,
+                                                        cols=cols, altitude_m=altitude_m)
+    if w is None:
+        return _empty()
+    H = float(altitude_m)
+    tri, normals, lo = w.tri, w.normals, w.lo
+    i0, i1, c0, c1, cs0, cs1 = w.i0, w.i1, w.c0, w.c1, w.cs0, w.cs1
+    edge0 = range0_m - dr_m / 2
+    nr, nc = i1 - i0, c1 - c0
+
+    # Sub-ray planes (s,) and seabed points (q,).
+    frac = (np.arange(k) + 0.5) / k - 0.5
+    xs = ((np.arange(i0, i1)[:, None] + frac[None, :]) * dx_m).reshape(-1)
+    ys = (range0_m + (np.arange(cs0, cs1)[:, None] + frac[None, :]) * dr_m).reshape(-1)
+    a, b, index, valid = slice_mesh(tri, xs)
+    p_shadow = np.zeros((nr, nc), dtype=np.float64)
+    echo = np.zeros((nr, nc), dtype=np.float64)
+    if valid.shape[1] == 0:
+        return Signature(i0, c0, p_shadow.astype(np.float32), echo.astype(np.float32))
+    nrm = normals[index]                                     # (s, m', 3)
+    if lo[2] < 0.0:
+        # Clip segments to the water column above the seabed: rays never go below z = 0.
+        a, b, valid = _clip_above_seabed(a, b, valid)
+    # A ray from S = (0, H) to the seabed point (y, 0) crosses segment AB iff y lies between
+    # the seabed projections of A and B from S: y' H / (H - z') (similar triangles).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pa = np.where(a[..., 1] < H, a[..., 0] * H / (H - a[..., 1]), np.inf)
+        pb = np.where(b[..., 1] < H, b[..., 0] * H / (H - b[..., 1]), np.inf)
+    lo_p = np.where(valid, np.minimum(pa, pb), np.inf)      # (s, m')
+    hi_p = np.where(valid, np.maximum(pa, pb), -np.inf)
+    cand = (ys[None, :, None] >= lo_p[:, None, :]) & (ys[None, :, None] <= hi_p[:, None, :])  # (s, q, m')
+    si, qi, mi = np.nonzero(cand)
+    hid = np.zeros((len(xs), len(ys)), dtype=bool)
+    if si.size:
+        # Ray S + t (P - S), segment A + u (B - A): t = ((A - S) x E) / (D x E).
+        dy, dz = ys[qi], -H
+        A, B = a[si, mi], b[si, mi]
+        ey, ez = B[:, 0] - A[:, 0], B[:, 1] - A[:, 1]
+        ay, az = A[:, 0], A[:, 1] - H
+        denom = dy * ez - dz * ey
+        dlen = np.hypot(dy, H)
+        par = np.abs(denom) <= _PARALLEL_EPS * dlen * np.hypot(ey, ez)
+        # A segment along the ray (grazing, parallel facet) is met at its nearer end.
+        near = np.minimum(np.hypot(ay, az), np.hypot(B[:, 0], B[:, 1] - H)) / dlen
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(par, near, (ay * ez - az * ey) / np.where(par, 1.0, denom))
+        # A hit at the seabed point itself (t = 1, a facet lying on the seabed) hides nothing.
+        good = (t > 0.0) & (t < 1.0 - 1e-9)
+        si, qi, mi, t, dlen = si[good], qi[good], mi[good], t[good], dlen[good]
+        # First hit per ray: sort by (ray, t) and keep the first of each ray.
+        ray = si * len(ys) + qi
+        order = np.lexsort((t, ray))
+        keep = np.ones(order.size, dtype=bool)
+        keep[1:] = ray[order][1:] != ray[order][:-1]
+        sel = order[keep]
+        si, qi, mi, t, dlen = si[sel], qi[sel], mi[sel], t[sel], dlen[sel]
+        hid[si, qi] = True
+        # Echo: |n . d| at the slant range of the hit, binned on the ground-range axis (layover adds).
+        n_hit = nrm[si, mi]
+        sin_g = np.abs(n_hit[:, 1] * ys[qi] - n_hit[:, 2] * H) / dlen
+        slant = t * dlen
+        ground = np.sqrt(np.maximum(slant ** 2 - H ** 2, 0.0))
+        col = np.floor((ground - edge0) / dr_m).astype(np.int64) - c0
+        row = si // k
+        inside = (col >= 0) & (col < nc)
+        flat = row[inside] * nc + col[inside]
+        echo += np.bincount(flat, weights=sin_g[inside], minlength=nr * nc).reshape(nr, nc) / (k * k)
+    # Shadow: fraction of hidden sub-rays per pixel.
+    p_shadow[:, cs0 - c0:cs1 - c0] = hid.reshape(nr, k, cs1 - cs0, k).mean(axis=(1, 3))
+    return Signature(i0, c0, p_shadow.astype(np.float32), echo.astype(np.float32))
