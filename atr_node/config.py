@@ -195,7 +195,13 @@ class SimulationSettings:
     """Target signature simulation and the sonar performance model (SPEC section 4)."""
 
     subrays: int = 2
-    """k: k x k sub-rays per pixel."""
+    """k: k x k sub-rays per pixel (``engine = "rays"``), or k sub-row strips per pixel row
+    (``"strips"``)."""
+    engine: Literal["rays", "strips"] = "rays"
+    """Signature engine (issue 19): ``"rays"`` samples k x k sub-rays per pixel (the tracer
+    the shipped model and the missions were made with); ``"strips"`` integrates each of k
+    sub-row planes exactly along range, closer to the fine trace at the same k (figures in
+    README's speed table); targets it cannot integrate exactly are traced by rays."""
     seabed: Literal["mud", "silt", "sand", "gravel", "rock"] = "silt"
     temperature_c: float = 14.0
     salinity_psu: float = 38.0
@@ -246,6 +252,7 @@ class SimulationSettings:
         # are simulated too, so the node's polar frames can be tested (issue 21)
         _check(-90.0 <= self.mission_origin_lat_deg <= 90.0, "simulation.mission_origin_lat_deg", "must be in [-90, 90]")
         _check(1 <= self.subrays <= 16, "simulation.subrays", "must be in [1, 16]")
+        _check(self.engine in ("rays", "strips"), "simulation.engine", "must be 'rays' or 'strips'")
         _check(-2.0 <= self.temperature_c <= 40.0, "simulation.temperature_c", "must be in [-2, 40]")
         _check(0.0 <= self.salinity_psu <= 45.0, "simulation.salinity_psu", "must be in [0, 45]")
         _check(self.depth_m >= 0.0, "simulation.depth_m", "must be >= 0")

@@ -24,8 +24,9 @@ from ..config import PopulationSettings, SensorSettings, SimulationSettings, Tem
 from ..errors import GeometryError
 from .meshes import Mesh, builtin_mesh, place
 from .performance import SonarModel
-from .raytrace import Signature, trace, trace_window
-from .signature import along_track_kernel, background_curve, blur_along_track, blurred_footprint, render
+from .raytrace import Signature, trace_many, trace_window
+from .signature import (along_track_kernel, background_curve, blur_along_track, blurred_footprint, draw_speckle,
+                        render)
 
 log = logging.getLogger(__name__)
 
@@ -202,6 +203,11 @@ def _altitude(altitude_m: float | np.ndarray) -> float:
     return alt
 
 
+BATCH = True
+"""Trace the targets of one call in one :func:`~.raytrace.trace_many` batch, with the same
+placements, draws and pixels as tracing them one by one (False, the reference the tests
+compare with)."""
+
 PRECHECK = True
 """Check a random placement before tracing it (:func:`_anchor_taken`, then the footprint the
 trace window gives): the same placements and draws as checking the traced signature (False,
@@ -313,10 +319,21 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         win = host[fp[0]:fp[1], fp[2]:fp[3]]
         return bool(np.isnan(win).mean() > 0.05 or not np.all(np.isfinite(g[fp[2]:fp[3]])))
 
-    def do(p: Placement, check: bool) -> bool:
+    engine = simulation.engine
+
+    @dataclass
+    class Ready:
+        """A placement with its window, checked and ready to trace."""
+        p: Placement
+        local: Mesh
+        window: object
+        kernel: np.ndarray
+        speckle: tuple[np.ndarray, np.ndarray] | None = None
+
+    def prepare(p: Placement, check: bool) -> Ready | None:
         early = check and PRECHECK
         if early and taken and _anchor_taken(p, taken, gap, range0_m=range0_m, dr_m=dr_m):
-            return False  # its window holds its anchor, which a placed target's area holds: refused
+            return None  # its window holds its anchor, which a placed target's area holds: refused
         local = _mesh_for(p)
         mesh = place(local, along_m=p.row * dx_m, range_m=p.range_m, heading_deg=p.heading_deg,
                      burial_m=p.burial_m)
@@ -325,21 +342,24 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         # ones on the traced signature, exactly, and the draws of ``rng`` are the same.
         window = trace_window(mesh, range0_m=range0_m, dr_m=dr_m, dx_m=dx_m, rows=rows, cols=cols, altitude_m=H)
         if window is None:
-            return False
+            return None
         kernel = _kernel(round(p.range_m, 1), dx_m, sensor)
         if early and refused(blurred_footprint(window.footprint, kernel, rows)):
-            return False
-        sig = trace(mesh, range0_m=range0_m, dr_m=dr_m, dx_m=dx_m, rows=rows, cols=cols, altitude_m=H, subrays=k,
-                    window=window)
-        if sig.empty or (sig.echo.max() <= 0 and sig.p_shadow.max() <= 0):
-            return False
-        sig = blur_along_track(sig, kernel, rows)
+            return None
+        return Ready(p, local, window, kernel)
+
+    def usable(sig: Signature) -> bool:
+        return not (sig.empty or (sig.echo.max() <= 0 and sig.p_shadow.max() <= 0))
+
+    def finish(r: Ready, sig: Signature, check: bool) -> bool:
+        p = r.p
+        sig = blur_along_track(sig, r.kernel, rows)
         fp = sig.footprint
-        if check and not early and refused(fp):
+        if check and not PRECHECK and refused(fp):
             return False
         # Reflectivity scales the echo intensity only: the shadow is the seabed's business.
         rho_e_t = rho_e if p.reflectivity_db == 0.0 else rho_e * 10.0 ** (p.reflectivity_db / 10.0)
-        render(host, sig, g=g, rho_shadow=rho_s, rho_echo=rho_e_t, rng=rng, kind=kind)
+        render(host, sig, g=g, rho_shadow=rho_s, rho_echo=rho_e_t, rng=rng, kind=kind, speckle=r.speckle)
         row = int(round(p.row))
         col = anchor_column(sig, row, rho_s, rho_e_t)
         jc = min(max(int(round((p.range_m - range0_m) / dr_m)), 0), cols - 1)
@@ -350,17 +370,40 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
                                       rho_echo=float(rho_e[jc]), reflectivity_db=float(p.reflectivity_db),
                                       scale=tuple(float(f) for f in p.scale), roll_deg=float(p.roll_deg),
                                       pitch_deg=float(p.pitch_deg),
-                                      height_m=max(local.height_m - float(p.burial_m), 0.0),
+                                      height_m=max(r.local.height_m - float(p.burial_m), 0.0),
                                       nominal=bool(p.nominal)))
-        taken.append(fp)
+        if not (check and PRECHECK):
+            taken.append(fp)
         return True
+
+    def trace_all(ready: list[Ready]) -> list[Signature]:
+        return trace_many([r.window for r in ready], range0_m=range0_m, dr_m=dr_m, dx_m=dx_m, altitude_m=H,
+                          subrays=k, engine=engine)
+
+    def do(p: Placement, check: bool) -> bool:
+        """One placement, traced at once (the reference order: see :data:`BATCH`)."""
+        r = prepare(p, check)
+        if r is None:
+            return False
+        sig = trace_all([r])[0]
+        if not usable(sig):
+            return False
+        if check and PRECHECK:
+            taken.append(blurred_footprint(r.window.footprint, r.kernel, rows))
+        return finish(r, sig, check)
 
     # Random targets keep the SMF context window (SPEC 2.3) of each other and of the edges.
     gap = (int(math.ceil(template.context_factor * template.length_m / dx_m / 2)),
            int(math.ceil(template.context_factor * template.echo_width_m / dr_m)))
     if placements is not None:
-        for p in placements:
-            if not do(p, check=False):
+        # No draw depends on a trace here: every placement is traced in one batch, then
+        # rendered in order.
+        ready = [prepare(p, False) for p in placements]
+        live = [r for r in ready if r is not None]
+        sigs = iter(trace_all(live) if BATCH else [trace_all([r])[0] for r in live])
+        for p, r in zip(placements, ready):
+            sig = next(sigs) if r is not None else None
+            if sig is None or not usable(sig) or not finish(r, sig, False):
                 log.info("target %s at row %.1f, range %.1f m is outside the tile: skipped", p.shape, p.row, p.range_m)
         return host, targets
     n = int(n_targets or 0)
@@ -368,12 +411,44 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
     lo, hi = max(lo, ranges[0]), min(hi, ranges[-1])
     if n <= 0 or hi <= lo:
         return host, targets
-    for _ in range(n):
-        for _try in range(max_tries):
-            p = draw_placement(rng, row_span=(gap[0], rows - gap[0]), range_span_m=(lo, hi),
-                               population=population, shapes=shapes, max_burial_m=max_burial_m)
-            if do(p, check=True):
-                break
+
+    def draw() -> Placement:
+        return draw_placement(rng, row_span=(gap[0], rows - gap[0]), range_span_m=(lo, hi), population=population,
+                              shapes=shapes, max_burial_m=max_burial_m)
+
+    if BATCH and PRECHECK:
+        # Place every target first, drawing each one's speckle as the sequential order does
+        # right after its placement (its footprint, and so the speckle's shape, is known from
+        # the window); then trace them all in one batch and render them in order.
+        start = rng.bit_generator.state
+        ready: list[Ready] = []
+        for _ in range(n):
+            for _try in range(max_tries):
+                r = prepare(draw(), True)
+                if r is not None:
+                    fp = blurred_footprint(r.window.footprint, r.kernel, rows)
+                    r.speckle = draw_speckle(rng, (fp[1] - fp[0], fp[3] - fp[2]))
+                    taken.append(fp)
+                    ready.append(r)
+                    break
+        sigs = trace_all(ready)
+        if all(usable(sig) for sig in sigs):
+            for r, sig in zip(ready, sigs):
+                finish(r, sig, True)
+        else:
+            # A window with nothing in it (a sliver above the seabed): the sequential order
+            # would have drawn again there. Replay that order from the same generator state.
+            rng.bit_generator.state = start
+            taken.clear()
+            for _ in range(n):
+                for _try in range(max_tries):
+                    if do(draw(), check=True):
+                        break
+    else:
+        for _ in range(n):
+            for _try in range(max_tries):
+                if do(draw(), check=True):
+                    break
     if len(targets) < n:
         log.info("placed %d of %d targets: the tile has no room for more", len(targets), n)
     return host, targets

@@ -86,8 +86,9 @@ def blur_along_track(sig: Signature, kernel: np.ndarray, rows: int) -> Signature
     k2 = kernel.reshape(-1, 1).astype(np.float32)
 
     def conv(a: np.ndarray) -> np.ndarray:
-        a = np.pad(a, ((pad_top, pad_bot), (0, 0)))
-        return cv2.filter2D(a, cv2.CV_32F, k2, borderType=cv2.BORDER_CONSTANT)
+        padded = np.zeros((pad_top + a.shape[0] + pad_bot, a.shape[1]), dtype=a.dtype)
+        padded[pad_top:pad_top + a.shape[0]] = a
+        return cv2.filter2D(padded, cv2.CV_32F, k2, borderType=cv2.BORDER_CONSTANT)
 
     return Signature(r0, sig.col0, np.clip(conv(sig.p_shadow), 0.0, 1.0), np.maximum(conv(sig.echo), 0.0))
 
@@ -117,8 +118,15 @@ def background_curve(intensity: np.ndarray, *, smooth_cols: int = 31) -> np.ndar
         return np.where(n > 0, s / np.maximum(n, 1), np.nan)
 
 
+def draw_speckle(rng: np.random.Generator, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The speckle :func:`render` draws for a signature of ``shape``: unit exponentials for the
+    shadow, then for the echo (the order fixes a seed's pixels)."""
+    return rng.exponential(1.0, shape), rng.exponential(1.0, shape)
+
+
 def render(host: np.ndarray, sig: Signature, *, g: np.ndarray, rho_shadow: np.ndarray, rho_echo: np.ndarray,
-           rng: np.random.Generator, kind: str = "intensity") -> np.ndarray:
+           rng: np.random.Generator | None, kind: str = "intensity",
+           speckle: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Blend a signature into ``host`` in place and return the modified window.
 
     Parameters
@@ -131,6 +139,9 @@ def render(host: np.ndarray, sig: Signature, *, g: np.ndarray, rho_shadow: np.nd
         Background intensity curve and the model's intensity ratios, per tile column.
     kind
         ``"intensity"`` or ``"amplitude"`` (then the blend is done on squared pixels).
+    speckle
+        The unit exponential speckle of the shadow and of the echo, of the signature's shape,
+        drawn by the caller (:func:`draw_speckle`); None: drawn here from ``rng``.
     """
     if sig.empty:
         return host[0:0, 0:0]
@@ -142,9 +153,9 @@ def render(host: np.ndarray, sig: Signature, *, g: np.ndarray, rho_shadow: np.nd
     gw = g[c0:c1][None, :]
     shadow_mean = rho_shadow[c0:c1][None, :] * gw
     echo_mean = rho_echo[c0:c1][None, :] * sig.echo * gw
-    shape = sig.shape
-    shadow = rng.exponential(1.0, shape) * shadow_mean
-    echo = rng.exponential(1.0, shape) * echo_mean
+    s_shadow, s_echo = speckle if speckle is not None else draw_speckle(rng, sig.shape)
+    shadow = s_shadow * shadow_mean
+    echo = s_echo * echo_mean
     out = sig.p_seabed * h + sig.p_shadow * shadow + echo
     if kind == "amplitude":
         out = np.sqrt(out)

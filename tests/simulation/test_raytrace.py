@@ -9,7 +9,7 @@ import pytest
 
 from atr_node.errors import GeometryError
 from atr_node.simulation.meshes import Mesh, box, builtin_mesh, place
-from atr_node.simulation.raytrace import trace
+from atr_node.simulation.raytrace import ENGINES, trace
 
 H = 14.0
 DR = DX = 0.1
@@ -89,11 +89,12 @@ def test_matches_3d_reference(shape, heading, burial):
 
 @pytest.mark.parametrize("r", [8.0, 25.0, 60.0, 110.0])
 @pytest.mark.parametrize("h", [0.3, 0.5, 1.0])
-def test_box_shadow_length_closed_form(r, h):
+@pytest.mark.parametrize("engine", ENGINES)
+def test_box_shadow_length_closed_form(r, h, engine):
     """SPEC section 4: the shadow of a box of height h at range r is h r / (H - h) within a pixel."""
     width = 1.0
     m = place(box(3.0, width, h), along_m=6.0, range_m=r, heading_deg=0.0)
-    sig = trace(m, altitude_m=H, subrays=4, **GRID)
+    sig = trace(m, altitude_m=H, subrays=4, engine=engine, **GRID)
     ps, _ = full(sig, GRID["rows"], GRID["cols"])
     far = r + width / 2  # the box's far edge casts the shadow
     cols = np.arange(GRID["cols"]) * DR
@@ -101,46 +102,50 @@ def test_box_shadow_length_closed_form(r, h):
     assert length == pytest.approx(h * far / (H - h), abs=DR)
 
 
-def test_box_taller_than_sensor_shadows_to_the_end():
+@pytest.mark.parametrize("engine", ENGINES)
+def test_box_taller_than_sensor_shadows_to_the_end(engine):
     m = place(box(2.0, 1.0, 20.0), along_m=6.0, range_m=30.0)
-    sig = trace(m, altitude_m=H, subrays=1, **GRID)
+    sig = trace(m, altitude_m=H, subrays=1, engine=engine, **GRID)
     assert sig.footprint[3] == GRID["cols"]
     ps, _ = full(sig, GRID["rows"], GRID["cols"])
     assert ps[60, 400:].min() == 1.0
 
 
-def test_outside_swath_or_tile_changes_nothing():
+@pytest.mark.parametrize("engine", ENGINES)
+def test_outside_swath_or_tile_changes_nothing(engine):
     for m in (place(box(), along_m=6.0, range_m=200.0),       # beyond the last column
               place(box(), along_m=-30.0, range_m=30.0),      # before the first row
               place(box(), along_m=6.0, range_m=-20.0),       # the other side of the track
               place(box(2, 1, 0.3), along_m=6.0, range_m=30.0, burial_m=0.5)):  # fully buried
-        sig = trace(m, altitude_m=H, subrays=2, **GRID)
+        sig = trace(m, altitude_m=H, subrays=2, engine=engine, **GRID)
         assert sig.empty or (sig.p_shadow.max() == 0 and sig.echo.max() == 0)
 
 
-def test_flipped_normals_and_degenerate_triangles_are_harmless():
+@pytest.mark.parametrize("engine", ENGINES)
+def test_flipped_normals_and_degenerate_triangles_are_harmless(engine):
     m = place(builtin_mesh("cylinder"), along_m=6.0, range_m=30.0, heading_deg=40.0)
-    ref = trace(m, altitude_m=H, subrays=2, **GRID)
-    flipped = trace(m.flipped(), altitude_m=H, subrays=2, **GRID)
+    ref = trace(m, altitude_m=H, subrays=2, engine=engine, **GRID)
+    flipped = trace(m.flipped(), altitude_m=H, subrays=2, engine=engine, **GRID)
     np.testing.assert_array_equal(ref.p_shadow, flipped.p_shadow)
     np.testing.assert_allclose(ref.echo, flipped.echo, rtol=1e-6)
     v = m.vertices_m
     extra = np.vstack([v, v[:1] + [0, 0, 0], v[:1] + [1e-20, 0, 0]])
     n = len(v)
     faces = np.vstack([m.faces, [[0, 0, 1], [n, n + 1, 0], [0, 1, 0]]])  # repeated and collinear vertices
-    degen = trace(Mesh(extra, faces), altitude_m=H, subrays=2, **GRID)
+    degen = trace(Mesh(extra, faces), altitude_m=H, subrays=2, engine=engine, **GRID)
     np.testing.assert_array_equal(ref.p_shadow, degen.p_shadow)
     np.testing.assert_allclose(ref.echo, degen.echo, rtol=1e-6)
     assert np.all(np.isfinite(degen.echo))
 
 
-def test_rays_parallel_to_facets_and_grazing():
+@pytest.mark.parametrize("engine", ENGINES)
+def test_rays_parallel_to_facets_and_grazing(engine):
     """SPEC section 8: a box whose end caps lie exactly in sub-ray planes (rays parallel to
     and inside the facets), and a ramp facet along the ray direction, give finite maps
     bounded like any other."""
     # End caps at x = 5.95 and 8.05: sub-ray planes of k = 2 are at (i +- 0.25) * 0.1 -> 5.95 is one.
     m = Mesh(box(2.1, 1.0, 0.5).vertices_m + [7.0, 30.0, 0.0], box().faces)
-    sig = trace(m, altitude_m=H, subrays=2, **GRID)
+    sig = trace(m, altitude_m=H, subrays=2, engine=engine, **GRID)
     assert np.all(np.isfinite(sig.p_shadow)) and np.all(np.isfinite(sig.echo))
     assert 0.0 <= sig.p_shadow.min() and sig.p_shadow.max() <= 1.0
     # A thin ramp whose slope follows the ray to the seabed point at y = 20: grazing angle 0.
@@ -148,17 +153,19 @@ def test_rays_parallel_to_facets_and_grazing():
     z0 = H * (1 - y0 / y1)  # on the ray from (0, H) to (y1, 0)
     v = np.array([[5.0, y0, z0], [7.0, y0, z0], [5.0, y1, 0.0], [7.0, y1, 0.0]])
     ramp = Mesh(v, np.array([[0, 1, 2], [1, 3, 2]]))
-    sig = trace(ramp, altitude_m=H, subrays=1, **GRID)
+    sig = trace(ramp, altitude_m=H, subrays=1, engine=engine, **GRID)
     assert np.all(np.isfinite(sig.echo)) and sig.echo.max() < 1e-6  # zero grazing returns nothing
     # Grazing angle -> 0 overall: a target 500 m away from a sonar 1 m up.
     far = place(builtin_mesh("cylinder"), along_m=6.0, range_m=500.0, heading_deg=10.0)
-    sig = trace(far, range0_m=490.0, dr_m=DR, dx_m=DX, rows=120, cols=400, altitude_m=1.0, subrays=2)
+    sig = trace(far, range0_m=490.0, dr_m=DR, dx_m=DX, rows=120, cols=400, altitude_m=1.0, subrays=2,
+                engine=engine)
     assert np.all(np.isfinite(sig.echo)) and sig.p_shadow.max() == 1.0
 
 
-def test_layover_and_echo_grows_with_visible_area():
+@pytest.mark.parametrize("engine", ENGINES)
+def test_layover_and_echo_grows_with_visible_area(engine):
     tall = place(box(2.0, 1.0, 3.0), along_m=6.0, range_m=20.0)
-    sig = trace(tall, altitude_m=H, subrays=2, **GRID)
+    sig = trace(tall, altitude_m=H, subrays=2, engine=engine, **GRID)
     _, ec = full(sig, GRID["rows"], GRID["cols"])
     front = int(round((20.0 - 0.5) / DR))
     # The top of the front face (z = 3) is at slant sqrt(19.5^2 + 11^2): ground sqrt(R^2 - H^2) < 19.5 m.
@@ -166,8 +173,9 @@ def test_layover_and_echo_grows_with_visible_area():
     first = int(np.flatnonzero(ec[60] > 0)[0])
     assert first < front
     assert first * DR == pytest.approx(expected, abs=DR)
-    e1 = trace(place(box(1.0, 1.0, 0.5), along_m=6.0, range_m=30.0), altitude_m=H, subrays=2, **GRID).echo.sum()
-    e2 = trace(place(box(2.0, 1.0, 0.5), along_m=6.0, range_m=30.0), altitude_m=H, subrays=2, **GRID).echo.sum()
+    kw = dict(altitude_m=H, subrays=2, engine=engine, **GRID)
+    e1 = trace(place(box(1.0, 1.0, 0.5), along_m=6.0, range_m=30.0), **kw).echo.sum()
+    e2 = trace(place(box(2.0, 1.0, 0.5), along_m=6.0, range_m=30.0), **kw).echo.sum()
     assert e2 / e1 == pytest.approx(2.0, rel=0.1)
 
 

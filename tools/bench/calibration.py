@@ -87,28 +87,30 @@ def main_online(argv: list[str] | None = None) -> int:
     cal = settings.calibration
     tiles, iters, runs = (2, 2, 1) if args.quick else (cal.online_tiles, cal.online_iterations, args.runs)
     traced = []
-    real_trace = inject.trace
+    real_trace = inject.trace_many
 
-    def counting(*a, **k):
-        traced.append(1)
-        return real_trace(*a, **k)
+    def counting(windows, **k):
+        traced.append(len(windows))
+        return real_trace(windows, **k)
 
     with tempfile.TemporaryDirectory() as tmp:
         files = generate_mission(settings, Path(tmp) / "m", seed=1)
         images = images_from_recording(files.atrlog, settings=settings, max_images=tiles)
-        inject.trace = counting
+        inject.trace_many = counting
         try:
             t0 = time.perf_counter()
             resp = collect_responses(images, settings=settings, iterations=iters, targets_per_image=cal.targets_per_image,
                                      seed=cal.seed)
             t_cal = time.perf_counter() - t0
         finally:
-            inject.trace = real_trace
+            inject.trace_many = real_trace
         harness.record(f"on-line calibration: {len(images)} tiles x {iters} iterations (one core)", [t_cal], clock="wall")
         harness.value("on-line calibration: signatures placed", int(resp.n_targets))
-        harness.value("on-line calibration: ray traces", len(traced))
+        harness.value("on-line calibration: signatures traced", sum(traced))
+        harness.value("on-line calibration: trace batches", len(traced))
         print(f"on-line calibration of {len(images)} tiles x {iters} iterations: {t_cal:.2f} s, "
-              f"{resp.n_targets} targets placed, {len(traced)} traces (target: 5 s)")
+              f"{resp.n_targets} targets placed, {sum(traced)} signatures traced in {len(traced)} batches "
+              "(target: 5 s)")
         med = {}
         for mode in ("on", "off"):
             samples = []

@@ -304,7 +304,8 @@ approximates:
 
 - detector precision (float32 tables) and decimation (2, 4): the scores, max |difference| /
   std of the full-precision scores over the mission's first tile;
-- sub-rays (k = 1, 4 against 2) and calibration size (on-line iterations 3, 20 against 10):
+- sub-rays (k = 1, 4 against 2), the strips signature engine (k = 2, against rays) and
+  calibration size (on-line iterations 3, 20 against 10):
   the calibrated P(y) curves, mean |difference| over detectors and range bins, and the
   thresholds, max relative difference;
 - grid cell size (0.25 m, 1.0 m against 0.5 m): the positions, median distance from each
@@ -332,6 +333,7 @@ def options(base):
         ("detectors: decimation 4", rep(detectors=dataclasses.replace(d, decimation=4)), True),
         ("simulation: 1 x 1 sub-rays", rep(simulation=dataclasses.replace(sim, subrays=1)), True),
         ("simulation: 4 x 4 sub-rays", rep(simulation=dataclasses.replace(sim, subrays=4)), True),
+        ("simulation: strips engine, k = 2", rep(simulation=dataclasses.replace(sim, engine="strips")), True),
         ("calibration: 3 iterations per tile", rep(calibration=dataclasses.replace(cal, online_iterations=3)), True),
         ("calibration: 20 iterations per tile", rep(calibration=dataclasses.replace(cal, online_iterations=20)), True),
         ("grid: 0.25 m cells", rep(fusion=dataclasses.replace(fus, cell_m=0.25)), True),
