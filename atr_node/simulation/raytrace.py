@@ -24,7 +24,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
+from typing import Sequence
 
 import numpy as np
 
@@ -81,16 +82,68 @@ def _empty() -> Signature:
     return Signature(0, 0, z, z)
 
 
-def _facet_normals(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Unit normals (m, 3), a keep-mask of non-degenerate triangles, and six times the signed
-    volume the triangles enclose (> 0: normals outward, for a closed mesh)."""
+def _facet_normals(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit normals (m', 3) of the non-degenerate triangles, their keep-mask (m,), and each
+    triangle's six times signed volume term ``v0 . (e1 x e2)`` (m,): summed over a closed
+    mesh, > 0 when its normals point outward."""
     e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
     n = np.column_stack([e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1],
                          e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
                          e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]])
     norm = np.sqrt((n * n).sum(axis=1))
     keep = 0.5 * norm > _AREA_EPS
-    return n[keep] / norm[keep, None], keep, float((n * tri[:, 0]).sum())
+    return n[keep] / norm[keep, None], keep, (n * tri[:, 0]).sum(axis=1)
+
+
+_CLOSED_BY_FACES: dict[int, tuple[np.ndarray, bool]] = {}
+
+
+def _closed_faces(faces: np.ndarray, keep: np.ndarray) -> bool:
+    """:func:`_closed` of the kept faces; remembered per faces array (meshes scaled, tilted
+    and placed share their faces), whose identity is held so it cannot be reused."""
+    if not keep.all():
+        return _closed(faces[keep].tobytes())
+    hit = _CLOSED_BY_FACES.get(id(faces))
+    if hit is not None and hit[0] is faces:
+        return hit[1]
+    if len(_CLOSED_BY_FACES) > 256:
+        _CLOSED_BY_FACES.clear()
+    out = _closed(faces.tobytes())
+    _CLOSED_BY_FACES[id(faces)] = (faces, out)
+    return out
+
+
+_ALL_USED: dict[int, tuple[np.ndarray, int, bool]] = {}
+
+
+def _faces_use_all(faces: np.ndarray, n_vertices: int) -> bool:
+    """Whether every vertex is a corner of some face (then the vertices' bounding box is the
+    triangles'); remembered per faces array, as :func:`_closed_faces`."""
+    hit = _ALL_USED.get(id(faces))
+    if hit is not None and hit[0] is faces and hit[1] == n_vertices:
+        return hit[2]
+    if len(_ALL_USED) > 256:
+        _ALL_USED.clear()
+    out = bool(np.unique(faces).size == n_vertices)
+    _ALL_USED[id(faces)] = (faces, n_vertices, out)
+    return out
+
+
+def _surfaces(windows: "Sequence[TraceWindow]") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The traced surface of many windows at once: their non-degenerate triangles (m, 3, 3)
+    and unit normals (m, 3), concatenated; the triangles per window (J,); and each window's
+    facing (+1 / -1: a closed mesh with normals outward / inward; 0: open)."""
+    counts = np.array([len(w.tri_all) for w in windows], dtype=np.int64)
+    tri_all = np.concatenate([w.tri_all for w in windows]) if windows else np.zeros((0, 3, 3))
+    normals, keep, vol = _facet_normals(tri_all)
+    starts = np.cumsum(counts) - counts
+    kept = np.add.reduceat(keep.astype(np.int64), starts) if tri_all.size else counts
+    vol6 = np.add.reduceat(vol, starts) if tri_all.size else np.zeros(len(windows))
+    facing = np.zeros(len(windows), dtype=np.int64)
+    for j, w in enumerate(windows):
+        if vol6[j] != 0.0 and _closed_faces(w.faces, keep[starts[j]:starts[j] + counts[j]]):
+            facing[j] = 1 if vol6[j] > 0 else -1
+    return tri_all[keep], normals, kept, facing
 
 
 @lru_cache(maxsize=256)
@@ -169,13 +222,14 @@ def _clip_above_seabed(a: np.ndarray, b: np.ndarray, valid: np.ndarray) -> tuple
 
 @dataclass(frozen=True, eq=False)
 class TraceWindow:
-    """What :func:`trace` needs of a placed target before it traces a ray: its usable
-    triangles and their normals, and the window of the tile it can reach (rows ``i0 .. i1``,
-    columns ``c0 .. c1``; seabed points ``cs0 .. cs1``). Cheap (the mesh's bounding box): a
-    caller can reject a placement on the window before paying for the trace."""
+    """What :func:`trace` needs of a placed target before it traces a ray: its triangles, and
+    the window of the tile it can reach (rows ``i0 .. i1``, columns ``c0 .. c1``; seabed points
+    ``cs0 .. cs1``). Cheap (the mesh's bounding box): a caller can reject a placement on the
+    window before paying for the trace, whose normals :func:`trace_many` works out for a
+    whole batch at once."""
 
-    tri: np.ndarray
-    normals: np.ndarray
+    tri_all: np.ndarray
+    faces: np.ndarray
     lo: np.ndarray
     zmax: float
     i0: int
@@ -184,14 +238,23 @@ class TraceWindow:
     c1: int
     cs0: int
     cs1: int
-    facing: int = 0
-    """+1 (-1): a closed mesh with normals outward (inward), whose faces turned away from the
-    sensor can be left out; 0: an open mesh, every face is traced."""
 
     @property
     def footprint(self) -> tuple[int, int, int, int]:
         """(row0, row1, col0, col1), half-open: the traced :class:`Signature`'s footprint."""
         return self.i0, self.i1, self.c0, self.c1
+
+    @cached_property
+    def surface(self) -> tuple[np.ndarray, np.ndarray, int]:
+        """(non-degenerate triangles, their unit normals, facing) of this window alone: facing
+        +1 (-1) for a closed mesh with normals outward (inward), whose faces turned away from
+        the sensor can be left out; 0 for an open mesh, every face traced."""
+        tri, normals, _, facing = _surfaces([self])
+        return tri, normals, int(facing[0])
+
+    @property
+    def facing(self) -> int:
+        return self.surface[2]
 
 
 def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
@@ -205,11 +268,10 @@ def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows:
         raise GeometryError(f"pixel spacing must be > 0, got dr={dr_m}, dx={dx_m}")
     H = float(altitude_m)
     tri_all = mesh.triangles_m
-    normals, keep, vol6 = _facet_normals(tri_all)
-    tri = tri_all[keep]
-    if len(tri) == 0:
+    if len(tri_all) == 0:
         return None
-    lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+    v = mesh.vertices_m if _faces_use_all(mesh.faces, len(mesh.vertices_m)) else tri_all.reshape(-1, 3)
+    lo, hi = v.min(axis=0), v.max(axis=0)
     zmax = min(hi[2], H)
     if zmax <= 0.0 or hi[1] <= 0.0:
         return None  # entirely buried, or on the other side of the track
@@ -229,8 +291,7 @@ def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows:
     c0, c1 = min(cs0, ce0), cs1
     if i1 <= i0 or c1 <= c0 or cs1 <= cs0:
         return None
-    facing = int(np.sign(vol6)) if vol6 != 0.0 and _closed(mesh.faces[keep].tobytes()) else 0
-    return TraceWindow(tri, normals, lo, float(zmax), i0, i1, c0, c1, cs0, cs1, facing)
+    return TraceWindow(tri_all, mesh.faces, lo, float(zmax), i0, i1, c0, c1, cs0, cs1)
 
 
 def trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
@@ -476,9 +537,9 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
     J = len(ws)
     frac = (np.arange(k) + 0.5) / k - 0.5
     edge0 = range0_m - dr_m / 2
-    geo = np.array([(w.i0, w.i1, w.c0, w.c1, w.cs0, w.cs1, len(w.tri), w.lo[2] < 0.0, w.facing)
-                    for _, w in ws], dtype=np.int64)
-    i0, i1, c0, c1, cs0, cs1, m_n, buried, facing = geo.T
+    tri, nrm_all, m_n, facing = _surfaces([w for _, w in ws])
+    geo = np.array([(w.i0, w.i1, w.c0, w.c1, w.cs0, w.cs1, w.lo[2] < 0.0) for _, w in ws], dtype=np.int64)
+    i0, i1, c0, c1, cs0, cs1, buried = geo.T
     nr, nc = i1 - i0, c1 - c0
     s_n, q_n = nr * k, (cs1 - cs0) * k                       # planes, and rays per plane, per target
     s_off = np.cumsum(s_n) - s_n
@@ -494,13 +555,12 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
     # Segments: each triangle cut by the planes within its along-track extent (one plane of
     # slack for rounding, then the exact test of slice_mesh). Triangle-major: within a plane,
     # the segments keep slice_mesh's triangle order, which is all the ties depend on.
-    tri = np.concatenate([w.tri for _, w in ws])
-    nrm_all = np.concatenate([w.normals for _, w in ws])
     tt = np.repeat(np.arange(J), m_n)                         # target of each triangle
     tx = tri[:, :, 0]
     step = dx_m / k
     x_first = (i0 - 0.5 + 0.5 / k) * dx_m                     # about the x of a target's plane 0
-    x_lo, x_hi = tx.min(axis=1), tx.max(axis=1)
+    x_lo = np.minimum(np.minimum(tx[:, 0], tx[:, 1]), tx[:, 2])
+    x_hi = np.maximum(np.maximum(tx[:, 0], tx[:, 1]), tx[:, 2])
     p_lo = np.floor((x_lo - x_first[tt]) / step).astype(np.int64) - 1
     p_hi = np.ceil((x_hi - x_first[tt]) / step).astype(np.int64) + 1
     f_tri = facing[tt]
@@ -516,21 +576,21 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
     ti, gp = _expand(p_lo, p_hi, s_n[tt], s_off[tt])          # (triangle, global plane)
     d = tx[ti] - xs[gp][:, None]                               # signed distances of the 3 vertices
     pos = d >= 0.0                                             # a vertex on the plane counts as positive
-    npos = pos.sum(axis=1)
-    cross = np.flatnonzero((npos == 1) | (npos == 2))
-    ti, gp, d, pos, npos = ti[cross], gp[cross], d[cross], pos[cross], npos[cross]
+    p0, p1, p2 = pos[:, 0], pos[:, 1], pos[:, 2]
+    cross = np.flatnonzero(~((p0 == p1) & (p1 == p2)))        # 1 or 2 vertices on the positive side
+    ti, gp, d, p0, p1, p2 = ti[cross], gp[cross], d[cross], p0[cross], p1[cross], p2[cross]
     hid_px = np.zeros(int((nr * nc).sum()), dtype=np.float64)
     echo = np.zeros_like(hid_px)
     diff = np.zeros(hid_px.size + 1)                           # the strips' fully hidden pixels, differenced
     if ti.size:
         # The lone vertex, on its own side of the plane: its two edges are the crossing ones.
-        lone = np.where(npos == 1, np.argmax(pos, axis=1), np.argmin(pos, axis=1))
-        P = np.arange(ti.size)
+        lone = np.where(p0 == p1, 2, np.where(p0 == p2, 1, 0))
         o1, o2 = (lone + 1) % 3, (lone + 2) % 3
-        v = tri[ti]
-        vl, dl = v[P, lone, 1:], d[P, lone]
-        a = vl + (dl / (dl - d[P, o1]))[:, None] * (v[P, o1, 1:] - vl)
-        b = vl + (dl / (dl - d[P, o2]))[:, None] * (v[P, o2, 1:] - vl)
+        flat_v, flat_d = tri.reshape(-1, 3), d.reshape(-1)
+        base3, row3 = ti * 3, np.arange(ti.size) * 3
+        vl, dl = flat_v[base3 + lone, 1:], flat_d[row3 + lone]
+        a = vl + (dl / (dl - flat_d[row3 + o1]))[:, None] * (flat_v[base3 + o1, 1:] - vl)
+        b = vl + (dl / (dl - flat_d[row3 + o2]))[:, None] * (flat_v[base3 + o2, 1:] - vl)
         st = tt[ti]                                            # target of each segment
         nrm = nrm_all[ti]
         # A closed mesh's faces turned away from the sensor never take a first hit.
@@ -544,8 +604,9 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
         with np.errstate(divide="ignore", invalid="ignore"):
             pa = np.where(a[:, 1] < H, a[:, 0] * H / (H - a[:, 1]), np.inf)
             pb = np.where(b[:, 1] < H, b[:, 0] * H / (H - b[:, 1]), np.inf)
-        keep = np.flatnonzero(valid)
-        st, nrm, a, b, pa, pb, gp = st[keep], nrm[keep], a[keep], b[keep], pa[keep], pb[keep], gp[keep]
+        if not valid.all():
+            keep = np.flatnonzero(valid)
+            st, nrm, a, b, pa, pb, gp = st[keep], nrm[keep], a[keep], b[keep], pa[keep], pb[keep], gp[keep]
         lo_p, hi_p = np.minimum(pa, pb), np.maximum(pa, pb)
         if engine == "strips":
             strip = _strip_targets(st, gp, lo_p, hi_p, facing, J, tol=1e-6 * dr_m)[st]
@@ -567,65 +628,92 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
         dlen_all = np.hypot(y_all, H)
         y_col = cs0[yt] + yq // k                             # tile column of each seabed point
         dmax = np.maximum.reduceat(dlen_all, y_off)          # longest |P - S| per target
-        # Rays whose seabed point lies in the segment's shadow interval [lo_p, hi_p]: an index
-        # range from the rays' even spacing (one ray of slack), then the exact test.
+        # Rays whose seabed point lies in the segment's shadow interval [lo_p, hi_p] (the
+        # tracer's test): an index range from the rays' even spacing, made exact against the
+        # rays' own y (a step or two of rounding), so no pair needs the test.
         ystep = dr_m / k
         y_first = range0_m + (cs0 - 0.5 + 0.5 / k) * dr_m
         qs = q_n[st]
+        y0 = y_off[st]
+
+        def y_at(r: np.ndarray) -> np.ndarray:
+            return y_all[y0 + np.clip(r, 0, qs - 1)]
+
         with np.errstate(invalid="ignore", over="ignore"):
-            r_lo = np.ceil(np.clip((lo_p - y_first[st]) / ystep, -2.0, qs + 2.0)).astype(np.int64) - 1
-            r_hi = np.floor(np.clip((hi_p - y_first[st]) / ystep, -2.0, qs + 2.0)).astype(np.int64) + 1
+            r_lo = np.ceil(np.clip((lo_p - y_first[st]) / ystep, -1.0, qs)).astype(np.int64)
+            r_hi = np.floor(np.clip((hi_p - y_first[st]) / ystep, -1.0, qs)).astype(np.int64)
+        r_lo, r_hi = np.clip(r_lo, 0, qs), np.clip(r_hi, -1, qs - 1)
+        for _ in range(2):
+            r_lo -= (r_lo > 0) & (y_at(r_lo - 1) >= lo_p)
+            r_hi += (r_hi + 1 < qs) & (y_at(r_hi + 1) <= hi_p)
+        for _ in range(2):
+            r_lo += (r_lo < qs) & (y_at(r_lo) < lo_p)
+            r_hi -= (r_hi >= 0) & (y_at(r_hi) > hi_p)
         # Per segment: the ray-segment intersection t = ((A - S) x E) / (D x E), D = (y, -H),
         # as trace() writes it: t = num / (y E_z - (-H) E_y).
         ay, az = a[:, 0], a[:, 1] - H
         ey, ez = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
         num = ay * ez - az * ey
         hey = -H * ey
-        # Global id of a ray = gbase (of its segment) + its index in y_all.
-        gbase = ray_off[st] + (gp - s_off[st]) * qs - y_off[st]
-        si, yi = _expand(r_lo, r_hi, qs, y_off[st])
+        si, yi = _expand(r_lo, r_hi, qs, y0)
         ys = y_all[yi]
         denom = ys * ez[si] - hey[si]
         with np.errstate(divide="ignore", invalid="ignore"):
             t = num[si] / denom
-        # Parallel: |denom| <= eps |D| |E|; first against the target's longest |D|, then exactly.
-        eps_len = _PARALLEL_EPS * np.hypot(ey, ez)
-        par = np.flatnonzero(np.abs(denom) <= (eps_len * dmax[st])[si])
-        par = par[np.abs(denom[par]) <= _PARALLEL_EPS * dlen_all[yi[par]] * np.hypot(ey, ez)[si[par]]]
-        if par.size:
-            # A segment along the ray (grazing, parallel facet) is met at its nearer end.
-            near = np.minimum(np.hypot(ay, az), np.hypot(b[:, 0], b[:, 1] - H))
-            t[par] = near[si[par]] / dlen_all[yi[par]]
-        # In the segment's shadow interval, and hit before the seabed point (t = 1: a facet
-        # lying on the seabed hides nothing).
-        hit = np.flatnonzero((ys >= lo_p[si]) & (ys <= hi_p[si]) & (t > 0.0) & (t < 1.0 - 1e-9))
-        si, yi, t = si[hit], yi[hit], t[hit]
+        # Parallel (|denom| <= eps |D| |E|: a segment along the ray) is possible only where
+        # denom, linear in y, comes near 0 over the segment's rays: checked per segment with
+        # the target's longest |D| (and a factor 2 for rounding), then per pair there.
+        seg_len = np.hypot(ey, ez)
+        d_lo, d_hi = y_at(r_lo) * ez - hey, y_at(r_hi) * ez - hey
+        maybe = (r_hi >= r_lo) & ((np.sign(d_lo) != np.sign(d_hi))
+                                  | (np.minimum(np.abs(d_lo), np.abs(d_hi)) <= 2.0 * _PARALLEL_EPS * dmax[st] * seg_len))
+        if maybe.any():
+            cand = np.flatnonzero(maybe[si])
+            par = cand[np.abs(denom[cand]) <= _PARALLEL_EPS * dlen_all[yi[cand]] * seg_len[si[cand]]]
+            if par.size:
+                # A segment along the ray (grazing, parallel facet) is met at its nearer end.
+                near = np.minimum(np.hypot(ay, az), np.hypot(b[:, 0], b[:, 1] - H))
+                t[par] = near[si[par]] / dlen_all[yi[par]]
+        # Hit before the seabed point (t = 1: a facet lying on the seabed hides nothing).
+        good = (t > 0.0) & (t < 1.0 - 1e-9)
+        if not good.all():
+            hit = np.flatnonzero(good)
+            si, yi, t, ys = si[hit], yi[hit], t[hit], ys[hit]
         # First hit per ray: the smallest t; among equal t, the segment trace() meets first.
-        gray = gbase[si] + yi
-        tmin = np.full(int((s_n * q_n).sum()), np.inf)
-        np.minimum.at(tmin, gray, t)
-        sel = np.flatnonzero(t == tmin[gray])
-        if sel.size > np.count_nonzero(tmin < np.inf):        # ties: the lowest segment wins
-            smin = np.full(tmin.size, np.iinfo(np.int64).max)
-            np.minimum.at(smin, gray[sel], si[sel])
-            sel = sel[si[sel] == smin[gray[sel]]]
-        si, yi, t = si[sel], yi[sel], t[sel]
-        ht = st[si]
-        ys, dlen = y_all[yi], dlen_all[yi]
+        # Rays met by one segment only (every ray, on a convex cross-section) need neither.
+        gray = (ray_off[st] + (gp - s_off[st]) * qs - y0)[si] + yi
+        n_rays = int((s_n * q_n).sum())
+        seen = np.zeros(n_rays, dtype=bool)
+        seen[gray] = True
+        if np.count_nonzero(seen) != gray.size:
+            tmin = np.full(n_rays, np.inf)
+            np.minimum.at(tmin, gray, t)
+            sel = np.flatnonzero(t == tmin[gray])
+            if sel.size > np.count_nonzero(tmin < np.inf):    # ties: the lowest segment wins
+                smin = np.full(n_rays, np.iinfo(np.int64).max)
+                np.minimum.at(smin, gray[sel], si[sel])
+                sel = sel[si[sel] == smin[gray[sel]]]
+            si, yi, t, ys = si[sel], yi[sel], t[sel], ys[sel]
+        dlen = dlen_all[yi]
         base = (px_off[st] + ((gp - s_off[st]) // k) * nc[st] - c0[st])[si]   # pixel of column 0 of the row
         # Shadow: hidden sub-rays per pixel.
         hid_px += np.bincount(base + y_col[yi], minlength=hid_px.size)
         # Echo: |n . d| at the slant range of the hit, binned on the ground-range axis (layover adds).
         sin_g = np.abs(nrm[:, 1][si] * ys - (nrm[:, 2] * H)[si]) / dlen
         slant = t * dlen
-        ground = np.sqrt(np.maximum(slant ** 2 - H ** 2, 0.0))
+        ground = np.sqrt(np.maximum(slant * slant - H * H, 0.0))
         col = np.floor((ground - edge0) / dr_m).astype(np.int64)
-        inside = (col >= c0[ht]) & (col < c1[ht])
-        echo += np.bincount((base + col)[inside], weights=sin_g[inside], minlength=echo.size)
-    hid_px += np.cumsum(diff[:-1]) * k
+        inside = (col >= c0[st][si]) & (col < c1[st][si])
+        if inside.all():
+            echo += np.bincount(base + col, weights=sin_g, minlength=echo.size)
+        else:
+            echo += np.bincount((base + col)[inside], weights=sin_g[inside], minlength=echo.size)
+    if engine == "strips":
+        hid_px += np.cumsum(diff[:-1]) * k
+    shadow32 = (hid_px / (k * k)).astype(np.float32)
+    echo32 = (echo / (k * k)).astype(np.float32)
     for j, (n, w) in enumerate(ws):
         o, shape = int(px_off[j]), (int(nr[j]), int(nc[j]))
         sz = shape[0] * shape[1]
-        out[n] = Signature(w.i0, w.c0, (hid_px[o:o + sz] / (k * k)).reshape(shape).astype(np.float32),
-                           (echo[o:o + sz] / (k * k)).reshape(shape).astype(np.float32))
+        out[n] = Signature(w.i0, w.c0, shadow32[o:o + sz].reshape(shape), echo32[o:o + sz].reshape(shape))
     return out

@@ -44,7 +44,8 @@ def dense_trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: 
     if w is None:
         return _empty()
     H = float(altitude_m)
-    tri, normals, lo = w.tri, w.normals, w.lo
+    tri, normals, _ = w.surface
+    lo = w.lo
     i0, i1, c0, c1, cs0, cs1 = w.i0, w.i1, w.c0, w.c1, w.cs0, w.cs1
     edge0 = range0_m - dr_m / 2
     nr, nc = i1 - i0, c1 - c0
