@@ -348,6 +348,15 @@ class CalibrationSettings:
     """Points of the tabulated confidence c(gamma; tau) from tau to the largest response."""
     online_iterations: int = 10
     """Injection iterations per tile of the on-line calibration (fewer than off-line)."""
+    converge_tau: float = 0.05
+    """Stop iterating an image early (issue 19) once, for every detector, its threshold moved
+    by at most this fraction of the interquartile range of its target responses in the last
+    iteration, and ``converge_pd`` holds too; ``iterations`` / ``online_iterations`` stay the
+    cap. 0 = never stop early."""
+    converge_pd: float = 0.02
+    """... and the 95 % Wilson half-width of each detector's Pd at its threshold, pooled over
+    the calibration's images (an image's own half-width divided by the square root of their
+    number), is at most this. 0 = never stop early (docs/calibration.md)."""
     population: PopulationSettings = field(default_factory=PopulationSettings)
     """The injected targets (``[calibration.population]``)."""
     online_switch_tile: int = 0
@@ -359,6 +368,8 @@ class CalibrationSettings:
         _check(self.targets_per_image >= 1, "calibration.targets_per_image", "must be >= 1")
         _check(self.confidence_points >= 2, "calibration.confidence_points", "must be >= 2")
         _check(self.online_iterations >= 1, "calibration.online_iterations", "must be >= 1")
+        _check(0.0 <= self.converge_tau < 1.0, "calibration.converge_tau", "must be in [0, 1)")
+        _check(0.0 <= self.converge_pd < 0.5, "calibration.converge_pd", "must be in [0, 0.5)")
         if self.online_switch_tile != 0:
             import logging
 

@@ -19,13 +19,8 @@ from ..config import CalibrationSettings, ThresholdSettings
 from . import looks as _looks
 from .looks import area_prior
 from .model import DetectorPerformance, PerformanceModel
-from .responses import Responses
+from .responses import MIN_NOMINAL, Responses
 from .stats import confidence_curve, dobeck_threshold, pd_curve, range_edges
-
-
-MIN_NOMINAL = 20
-"""Fewest nominal target responses Dobeck's rule reads with ``threshold_on = "nominal"``;
-with fewer it reads the whole population (and the provenance says so)."""
 
 
 def estimate_detector(x_t: np.ndarray, x_n: np.ndarray, ranges_m: np.ndarray, *, calibration: CalibrationSettings,

@@ -168,6 +168,7 @@ class OnlineCalibrator:
         self.images: int | None = None
         """Images the on-line model was made from (tiles too small for a target are skipped)."""
         self.skipped = 0
+        self.iterations: list[int] | None = None
         self.error: str | None = None
         self.waiting_since: float | None = None
         """``time.monotonic()`` when the node began to wait for the worker's model (None: not
@@ -403,6 +404,9 @@ class OnlineCalibrator:
                 self._model = model
                 self.switched_at = tile_no
                 self.images = int(model.provenance.get("n_images", self._offered))
+                done = model.provenance.get("iterations_done")
+                self.iterations = ([int(min(done)), int(max(done)), int(model.provenance.get("iterations", max(done)))]
+                                   if done else None)
                 self.skipped = len(model.provenance.get("skipped_images") or ())
         if kind != "model":
             self.error = str(payload)
@@ -416,7 +420,7 @@ class OnlineCalibrator:
         state = "on-line" if self.switched_at is not None else "failed" if self.error else "pending"
         return {"state": state, "deterministic": self.deterministic, "fallback": self.fallback_name,
                 "offered": self._offered, "of": self.n_tiles, "images": self.images, "skipped": self.skipped,
-                "from_tile": self.switched_at, "error": self.error}
+                "from_tile": self.switched_at, "error": self.error, "iterations": self.iterations}
 
     def close(self) -> None:
         """Stop the worker (idempotent)."""
@@ -482,6 +486,10 @@ def model_report(outcome: Mapping[str, Any] | None, *, tiles: int | None, fallba
             notes.append(f"the recording has {o['offered']} tiles")
         if o["skipped"]:
             notes.append(f"{o['skipped']} too small for a target and its context window")
+        it = o.get("iterations")
+        if it and it[1] < it[2]:  # [fewest, most, cap] iterations per image: every image converged early
+            lo, hi, cap = it
+            notes.append(f"converged after {lo if lo == hi else f'{lo}-{hi}'} of {cap} iterations per image")
         images = f"{o['images']} of {o['of']} images" + (f" ({'; '.join(notes)})" if notes else "")
         t = int(o["from_tile"])
         if t <= 1:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import logging
+import math
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -205,11 +206,71 @@ def _population(settings: Any) -> Any:
     return getattr(cal, "population", None) or PopulationSettings()
 
 
+MIN_NOMINAL = 20
+"""Fewest nominal target responses Dobeck's rule reads with ``threshold_on = "nominal"``;
+with fewer it reads the whole population (and the provenance says so)."""
+
+
+class Convergence:
+    """When one image's iterations may stop (issue 19): after each iteration from the second,
+    for every detector,
+
+    - its Dobeck threshold on the image's targets so far (the nominal ones when there are
+      enough of them, as :func:`~.estimate.estimate_model` sets it) moved by at most
+      ``converge_tau`` x the interquartile range of its target responses since the last
+      iteration, and
+    - the 95 % Wilson half-width of its Pd at that threshold (detected / injected targets of
+      the image), divided by sqrt(``pooled``) (the images pooled into the model), is at most
+      ``converge_pd``.
+
+    Each image judges its own responses only, so the rule gives the same iterations whatever
+    process collects which image, and the same model for the same tiles, settings and seed."""
+
+    def __init__(self, calibration: Any, pooled: int) -> None:
+        self.tau_tol = float(getattr(calibration, "converge_tau", 0.0))
+        self.pd_tol = float(getattr(calibration, "converge_pd", 0.0))
+        self.pd_target = float(calibration.pd_target)
+        self.on_nominal = getattr(getattr(calibration, "population", None), "threshold_on", "nominal") == "nominal"
+        self.scale = math.sqrt(max(1, int(pooled)))
+        self.last: dict[str, float] = {}
+
+    @property
+    def enabled(self) -> bool:
+        return self.tau_tol > 0.0 and self.pd_tol > 0.0
+
+    def done(self, target: Mapping[str, list[float]], nominal: list[float]) -> bool:
+        """Whether the responses so far (each detector's, in injection order) have converged;
+        call once after each iteration."""
+        from .stats import dobeck_threshold, wilson_interval
+
+        nom = np.asarray(nominal, dtype=float) > 0
+        use_nominal = self.on_nominal and int(nom.sum()) >= MIN_NOMINAL
+        ok, first = True, not self.last
+        for d, values in target.items():
+            x = np.asarray(values, dtype=np.float64)
+            sel = x[nom] if use_nominal else x
+            sel = sel[np.isfinite(sel)]
+            if sel.size == 0:
+                return False
+            tau = dobeck_threshold(sel, self.pd_target, default=0.0)
+            finite = x[np.isfinite(x)]
+            q1, q3 = np.percentile(finite, [25.0, 75.0])
+            moved = abs(tau - self.last.get(d, math.inf))
+            self.last[d] = tau
+            lo, hi = wilson_interval(float(np.sum(finite > tau)), float(x.size))
+            if first or moved > self.tau_tol * (q3 - q1) or (float(hi) - float(lo)) / 2.0 / self.scale > self.pd_tol:
+                ok = False
+        return ok and not first
+
+
 def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, targets_per_image: int,
                   rng: np.random.Generator, enabled: Sequence[str] | None = None,
-                  progress: Callable[[], None] | None = None, scoring: str = "auto") -> Responses:
-    """Responses of one image: non-target cells of the clean image, then ``iterations`` rounds
-    of ``targets_per_image`` injected targets.
+                  progress: Callable[[], None] | None = None, scoring: str = "auto",
+                  pooled: int | None = None) -> Responses:
+    """Responses of one image: non-target cells of the clean image, then up to ``iterations``
+    rounds of ``targets_per_image`` injected targets: fewer when ``pooled`` (the number of
+    images pooled into the model) is given and the image's responses converge first
+    (:class:`Convergence`, ``calibration.converge_tau`` and ``converge_pd``).
 
     Lazy scoring: the clean image is scored once. Each injected target is scored on a crop
     (or, where the crops together cover more than the image, the injected image once):
@@ -228,7 +289,7 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
     rng : numpy.random.Generator
         Draws every placement and the speckle of the signatures.
     progress : callable, optional
-        Called once after each iteration.
+        Called once after each iteration (and once for each iteration a convergence spared).
     scoring : {"auto", "crops", "whole"}
         How the injected targets are scored: ``"crops"`` each on its crop; ``"whole"`` the
         whole injected image once an iteration; ``"auto"`` the whole image when the crops
@@ -262,6 +323,10 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
     shapes: list[str] = []
     traits: dict[str, list[float]] = {k: [] for k in TRAITS}
     population = _population(settings)
+    cal = getattr(settings, "calibration", None)
+    conv = Convergence(cal, pooled) if pooled is not None and cal is not None else None
+    conv = conv if conv is not None and conv.enabled else None
+    done = 0
     for _ in range(iterations):
         injected, placed = inject_targets(px, range0_m=image.range0_m, n_targets=targets_per_image, rng=rng,
                                           sensor=settings.sensor, simulation=settings.simulation,
@@ -297,13 +362,19 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
             traits["nominal"].append(float(t.nominal))
             traits["reflectivity_db"].append(float(t.reflectivity_db))
             traits["height_m"].append(float(t.height_m))
+        done += 1
         if progress is not None:
             progress()
+        if conv is not None and done < iterations and conv.done(target, traits["nominal"]):
+            if progress is not None:
+                for _ in range(iterations - done):
+                    progress()
+            break
     n_cells = int(np.isfinite(np.column_stack([nontarget[d] for d in dets])).any(axis=1).sum()) if dets else 0
     # the mean area of the clean cells scored: the cell the prior P(T) is per (SPEC 6.1)
     area = (rows // max(1, geom.length_px)) * geom.length_px * image.dx_m * cols * image.dr_m
     prov = {"n_images": 1, "images": [image.name], "image_shape": [rows, cols], "iterations": iterations,
-            "targets_per_image": targets_per_image,
+            "targets_per_image": targets_per_image, "iterations_done": [done],
             "cell_area_m2": area / max(1, next(iter(nontarget.values())).size) if dets else None,
             "n_cells": n_cells}
     return Responses(dets, {d: np.asarray(v, dtype=np.float64) for d, v in target.items()}, nontarget,
@@ -345,7 +416,8 @@ def collect_parts(usable: Sequence[CalibrationImage], *, settings: Any, iteratio
     processes gives the parts one process gives. ``progress()`` after each iteration."""
     ks = range(len(usable)) if which is None else which
     return {k: collect_image(usable[k], settings=settings, iterations=iterations, targets_per_image=targets_per_image,
-                             rng=np.random.default_rng([seed, k]), enabled=enabled, progress=progress)
+                             rng=np.random.default_rng([seed, k]), enabled=enabled, progress=progress,
+                             pooled=len(usable))
             for k in ks}
 
 
@@ -359,6 +431,7 @@ def pool_parts(parts: Mapping[int, Responses], *, n_usable: int, skipped: Sequen
     out = Responses.concat(ordered)
     prov = dict(out.provenance)
     prov.update({"images": [n for p in ordered for n in p.provenance["images"]], "iterations": iterations,
+                 "iterations_done": [i for p in ordered for i in p.provenance.get("iterations_done", [iterations])],
                  "targets_per_image": targets_per_image, "seed": seed, "skipped_images": list(skipped)})
     prov.update(_settings_provenance(settings))
     prov["population"]["n_nominal"] = int(out.nominal.sum())

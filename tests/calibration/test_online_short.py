@@ -37,8 +37,9 @@ FAST_CALIBRATION = "\n[calibration]\nonline_iterations = 1\ntargets_per_image = 
 """A cheap on-line calibration (6 images x 1 iteration x 5 targets): the test is about when the
 model is used, not about its quality."""
 
-SLOW_CALIBRATION = "\n[calibration]\nonline_iterations = 3000\ntargets_per_image = 40\n"
-"""Minutes of calibration: a replay is certainly still waiting for it when signalled."""
+SLOW_CALIBRATION = "\n[calibration]\nonline_iterations = 3000\ntargets_per_image = 40\nconverge_pd = 0\n"
+"""Minutes of calibration (no early stop at convergence): a replay is certainly still waiting
+for it when signalled."""
 
 SHORT_TILES = 6
 

@@ -142,7 +142,7 @@ def _ctrl_c_once(log: Path, folder: Path, k: int) -> float:
     import subprocess
 
     conf = folder / "slow.toml"
-    conf.write_text("[calibration]\nonline_iterations = 3000\n")
+    conf.write_text("[calibration]\nonline_iterations = 3000\nconverge_pd = 0\n")  # minutes: no early stop
     p = subprocess.Popen([sys.executable, "-m", "atr_node", "-v", "replay", str(log), "--config", str(conf),
                           "--publish", "none", "--state-dir", str(folder / f"ctrl_c_{k}")],
                          stderr=subprocess.PIPE, text=True, start_new_session=True)
