@@ -42,8 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     settings = load_settings(args.config)
-    # the paper's fixed count of signatures: no early stop at convergence (issue 19), so the
-    # shipped tables regenerate as they were made
+    # the paper's fixed count of signatures even where a config turns the early stop at
+    # convergence on (issue 19): the shipped tables regenerate as they were made
     settings = settings.replace(calibration=dataclasses.replace(settings.calibration, converge_pd=0.0))
     sen = settings.sensor
     r0 = 2.0 * sen.altitude_m

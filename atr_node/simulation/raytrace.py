@@ -22,17 +22,17 @@ echo bins from the smallest slant range its bounding box allows.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from functools import cached_property, lru_cache
-from typing import Sequence
 
 import numpy as np
 
 from ..errors import GeometryError
 from .meshes import Mesh
+from .strips import expand_ranges, strip_echo, strip_shadow, strip_targets
+from .window import TraceWindow, surfaces, trace_window
 
-_AREA_EPS = 1e-12   # m^2: smaller triangles are degenerate and skipped
+__all__ = ["ENGINES", "Signature", "TraceWindow", "slice_mesh", "trace", "trace_many", "trace_window"]
+
 _PARALLEL_EPS = 1e-9  # |sin| between a ray and a segment below which they are parallel
 
 
@@ -80,85 +80,6 @@ class Signature:
 def _empty() -> Signature:
     z = np.zeros((0, 0), dtype=np.float32)
     return Signature(0, 0, z, z)
-
-
-def _facet_normals(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit normals (m', 3) of the non-degenerate triangles, their keep-mask (m,), and each
-    triangle's six times signed volume term ``v0 . (e1 x e2)`` (m,): summed over a closed
-    mesh, > 0 when its normals point outward."""
-    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-    n = np.column_stack([e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1],
-                         e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2],
-                         e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]])
-    norm = np.sqrt((n * n).sum(axis=1))
-    keep = 0.5 * norm > _AREA_EPS
-    return n[keep] / norm[keep, None], keep, (n * tri[:, 0]).sum(axis=1)
-
-
-_CLOSED_BY_FACES: dict[int, tuple[np.ndarray, bool]] = {}
-
-
-def _closed_faces(faces: np.ndarray, keep: np.ndarray) -> bool:
-    """:func:`_closed` of the kept faces; remembered per faces array (meshes scaled, tilted
-    and placed share their faces), whose identity is held so it cannot be reused."""
-    if not keep.all():
-        return _closed(faces[keep].tobytes())
-    hit = _CLOSED_BY_FACES.get(id(faces))
-    if hit is not None and hit[0] is faces:
-        return hit[1]
-    if len(_CLOSED_BY_FACES) > 256:
-        _CLOSED_BY_FACES.clear()
-    out = _closed(faces.tobytes())
-    _CLOSED_BY_FACES[id(faces)] = (faces, out)
-    return out
-
-
-_ALL_USED: dict[int, tuple[np.ndarray, int, bool]] = {}
-
-
-def _faces_use_all(faces: np.ndarray, n_vertices: int) -> bool:
-    """Whether every vertex is a corner of some face (then the vertices' bounding box is the
-    triangles'); remembered per faces array, as :func:`_closed_faces`."""
-    hit = _ALL_USED.get(id(faces))
-    if hit is not None and hit[0] is faces and hit[1] == n_vertices:
-        return hit[2]
-    if len(_ALL_USED) > 256:
-        _ALL_USED.clear()
-    out = bool(np.unique(faces).size == n_vertices)
-    _ALL_USED[id(faces)] = (faces, n_vertices, out)
-    return out
-
-
-def _surfaces(windows: "Sequence[TraceWindow]") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The traced surface of many windows at once: their non-degenerate triangles (m, 3, 3)
-    and unit normals (m, 3), concatenated; the triangles per window (J,); and each window's
-    facing (+1 / -1: a closed mesh with normals outward / inward; 0: open)."""
-    counts = np.array([len(w.tri_all) for w in windows], dtype=np.int64)
-    tri_all = np.concatenate([w.tri_all for w in windows]) if windows else np.zeros((0, 3, 3))
-    normals, keep, vol = _facet_normals(tri_all)
-    starts = np.cumsum(counts) - counts
-    kept = np.add.reduceat(keep.astype(np.int64), starts) if tri_all.size else counts
-    vol6 = np.add.reduceat(vol, starts) if tri_all.size else np.zeros(len(windows))
-    facing = np.zeros(len(windows), dtype=np.int64)
-    for j, w in enumerate(windows):
-        if vol6[j] != 0.0 and _closed_faces(w.faces, keep[starts[j]:starts[j] + counts[j]]):
-            facing[j] = 1 if vol6[j] > 0 else -1
-    return tri_all[keep], normals, kept, facing
-
-
-@lru_cache(maxsize=256)
-def _closed(faces: bytes) -> bool:
-    """Whether triangles (int64 (m, 3) as bytes) close a surface with consistent winding:
-    every directed edge once, and its reverse once."""
-    f = np.frombuffer(faces, dtype=np.int64).reshape(-1, 3)
-    if f.size == 0:
-        return False
-    a, b = f.reshape(-1), np.roll(f, -1, axis=1).reshape(-1)
-    n = int(f.max()) + 1
-    edge = np.sort(a * n + b)
-    if np.any(edge[1:] == edge[:-1]):
-        return False
-    return bool(np.isin(b * n + a, edge, assume_unique=True).all())
 
 
 def slice_mesh(tri: np.ndarray, x_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -220,80 +141,6 @@ def _clip_above_seabed(a: np.ndarray, b: np.ndarray, valid: np.ndarray) -> tuple
     return a, b, valid
 
 
-@dataclass(frozen=True, eq=False)
-class TraceWindow:
-    """What :func:`trace` needs of a placed target before it traces a ray: its triangles, and
-    the window of the tile it can reach (rows ``i0 .. i1``, columns ``c0 .. c1``; seabed points
-    ``cs0 .. cs1``). Cheap (the mesh's bounding box): a caller can reject a placement on the
-    window before paying for the trace, whose normals :func:`trace_many` works out for a
-    whole batch at once."""
-
-    tri_all: np.ndarray
-    faces: np.ndarray
-    lo: np.ndarray
-    zmax: float
-    i0: int
-    i1: int
-    c0: int
-    c1: int
-    cs0: int
-    cs1: int
-
-    @property
-    def footprint(self) -> tuple[int, int, int, int]:
-        """(row0, row1, col0, col1), half-open: the traced :class:`Signature`'s footprint."""
-        return self.i0, self.i1, self.c0, self.c1
-
-    @cached_property
-    def surface(self) -> tuple[np.ndarray, np.ndarray, int]:
-        """(non-degenerate triangles, their unit normals, facing) of this window alone: facing
-        +1 (-1) for a closed mesh with normals outward (inward), whose faces turned away from
-        the sensor can be left out; 0 for an open mesh, every face traced."""
-        tri, normals, _, facing = _surfaces([self])
-        return tri, normals, int(facing[0])
-
-    @property
-    def facing(self) -> int:
-        return self.surface[2]
-
-
-def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
-                 altitude_m: float) -> TraceWindow | None:
-    """The window :func:`trace` traces a placed target into, or None when the trace is empty
-    (outside the tile, entirely buried, on the other side of the track). Parameters as
-    :func:`trace`."""
-    if not (altitude_m > 0 and math.isfinite(altitude_m)):
-        raise GeometryError(f"altitude must be finite and > 0, got {altitude_m!r}")
-    if dr_m <= 0 or dx_m <= 0:
-        raise GeometryError(f"pixel spacing must be > 0, got dr={dr_m}, dx={dx_m}")
-    H = float(altitude_m)
-    tri_all = mesh.triangles_m
-    if len(tri_all) == 0:
-        return None
-    v = mesh.vertices_m if _faces_use_all(mesh.faces, len(mesh.vertices_m)) else tri_all.reshape(-1, 3)
-    lo, hi = v.min(axis=0), v.max(axis=0)
-    zmax = min(hi[2], H)
-    if zmax <= 0.0 or hi[1] <= 0.0:
-        return None  # entirely buried, or on the other side of the track
-    # Rows the target spans (pixel i covers x in [(i - 1/2) dx, (i + 1/2) dx)).
-    i0 = max(int(math.floor(lo[0] / dx_m + 0.5)), 0)
-    i1 = min(int(math.floor(hi[0] / dx_m + 0.5)) + 1, rows)
-    # Seabed points that can be hidden: from the nearest ground range to the end of the shadow.
-    y_near = max(lo[1], 0.0)
-    y_far = hi[1] * H / (H - zmax) if zmax < H else math.inf
-    edge0 = range0_m - dr_m / 2
-    cs0 = max(int(math.floor((y_near - edge0) / dr_m)), 0)
-    cs1 = min(int(math.floor((y_far - edge0) / dr_m)) + 1, cols) if math.isfinite(y_far) else cols
-    # Echo bins: the smallest slant range any point of the bounding box can have.
-    r_min = math.sqrt(y_near ** 2 + (H - zmax) ** 2)
-    g_min = math.sqrt(max(r_min ** 2 - H ** 2, 0.0))
-    ce0 = max(int(math.floor((g_min - edge0) / dr_m)), 0)
-    c0, c1 = min(cs0, ce0), cs1
-    if i1 <= i0 or c1 <= c0 or cs1 <= cs0:
-        return None
-    return TraceWindow(tri_all, mesh.faces, lo, float(zmax), i0, i1, c0, c1, cs0, cs1)
-
-
 def trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
           altitude_m: float, subrays: int = 2, window: TraceWindow | None = None, engine: str = "rays") -> Signature:
     """Trace a placed target (tile frame, see :func:`~.meshes.place`) into proportion maps.
@@ -328,157 +175,10 @@ def trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, c
                       engine=engine)[0]
 
 
-def _expand(lo: np.ndarray, hi: np.ndarray, n_max: np.ndarray, *bases: np.ndarray
-            ) -> tuple[np.ndarray, ...]:
-    """Index ranges ``lo .. hi`` (inclusive, clipped to ``0 .. n_max - 1``), one per owner,
-    expanded owner-major into (owner, base_1 + index, base_2 + index, ...) per element."""
-    lo = np.maximum(lo, 0)
-    cnt = np.maximum(np.minimum(hi, n_max - 1) - lo + 1, 0)
-    total = int(cnt.sum())
-    owner = np.repeat(np.arange(cnt.size), cnt)
-    shift = np.cumsum(cnt) - cnt - lo                         # element e of owner o has index e - shift[o]
-    ramp = np.arange(total)
-    return (owner,) + tuple(ramp - (shift - base)[owner] for base in bases)
-
-
 ENGINES = ("rays", "strips")
 """Signature engines: ``"rays"``, k x k sampled sub-rays per pixel (the tracer of
 :func:`trace`); ``"strips"``, k sub-row planes per pixel row, each integrated exactly along
-range (:func:`_strip_shadow`, :func:`_strip_echo`)."""
-
-
-def _strip_targets(st: np.ndarray, gp: np.ndarray, lo_p: np.ndarray, hi_p: np.ndarray, facing: np.ndarray,
-                   J: int, *, tol: float) -> np.ndarray:
-    """Targets the strips can trace exactly: a closed mesh below the sensor whose front
-    segments' shadow intervals do not overlap within any plane (a convex cross-section, as
-    every built-in shape has, tilted, scaled or buried). Visibility is then the identity:
-    every front segment is seen whole. The others are traced by rays."""
-    ok = facing != 0
-    bad = ~np.isfinite(hi_p)                                   # reaches the sensor's height
-    # Segments of (almost) no length hide nothing and return nothing: a triangle touching a
-    # plane at a vertex or along an edge.
-    with np.errstate(invalid="ignore"):
-        long_ = np.flatnonzero(hi_p - lo_p > tol)
-    order = long_[np.lexsort((lo_p[long_], gp[long_]))]
-    g, lo, hi = gp[order], lo_p[order], hi_p[order]
-    same = g[1:] == g[:-1]
-    bad_pair = same & (lo[1:] < hi[:-1] - tol)
-    bad_t = np.zeros(J, dtype=bool)
-    bad_t[st[bad]] = True
-    bad_t[st[order[1:][bad_pair]]] = True
-    return ok & ~bad_t
-
-
-def _strip_shadow(hid: np.ndarray, diff: np.ndarray, base: np.ndarray, lo: np.ndarray, hi: np.ndarray, *,
-                  edge0: float, dr_m: float, k: int, col_end: np.ndarray) -> None:
-    """Add each strip's hidden length per pixel (in sub-rays: the fraction times k) to
-    ``hid`` (partial pixels) and ``diff`` (runs of whole pixels, differenced)."""
-    ul, uh = (lo - edge0) / dr_m, (hi - edge0) / dr_m
-    s = np.flatnonzero(uh > ul)
-    base, ul, uh, col_end = base[s], ul[s], uh[s], col_end[s]
-    jl = np.floor(ul).astype(np.int64)
-    jh = np.minimum(np.floor(uh).astype(np.int64), col_end - 1)
-    one = jl == jh
-    hid += np.bincount(base + jl, weights=np.where(one, uh - ul, jl + 1 - ul) * k, minlength=hid.size)
-    two = ~one
-    hid += np.bincount(base[two] + jh[two], weights=(uh[two] - jh[two]) * k, minlength=hid.size)
-    run = np.flatnonzero(jh > jl + 1)
-    diff += np.bincount(base[run] + jl[run] + 1, minlength=diff.size) - np.bincount(base[run] + jh[run],
-                                                                                     minlength=diff.size)
-
-
-def _strip_echo(echo: np.ndarray, base: np.ndarray, a: np.ndarray, b: np.ndarray, nrm: np.ndarray,
-                pa: np.ndarray, pb: np.ndarray, lo_w: np.ndarray, hi_w: np.ndarray, c0: np.ndarray, c1: np.ndarray, *, H: float, edge0: float,
-                dr_m: float, k: int) -> None:
-    """Add each front segment's echo, integrated exactly over the rays that meet it, to the
-    ground-range bins of its hits (in sub-ray units: times k^2).
-
-    A ray to seabed point p returns ``|n . d| = |n_y p - n_z H| / sqrt(p^2 + H^2)``; the k
-    planes of a row hold ``k / dr`` rays per metre of seabed each, of weight ``1 / k^2``:
-    a piece of segment whose rays reach seabed points p1 .. p2 adds
-    ``(k / dr) |I(p2) - I(p1)|`` with ``I(p) = n_y sqrt(p^2 + H^2) - n_z H asinh(p / H)``
-    (the sign of n . d is the segment's). The hit P(u) = A + u (B - A) has ground range
-    ``sqrt(G(u))``, ``G = g0 + g1 u + g2 u^2`` (slant^2 - H^2): the segment is cut where G
-    turns and where the ground range crosses a bin edge (the root of G(u) = g^2 on that side).
-    """
-    ay, az = a[:, 0], a[:, 1]
-    ey, ez = b[:, 0] - ay, b[:, 1] - az
-    hz = H - az
-
-    def p_of(u: np.ndarray, s: np.ndarray) -> np.ndarray:
-        return (ay[s] + u * ey[s]) * H / (hz[s] - u * ez[s])
-
-    def u_of(p: np.ndarray) -> np.ndarray:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return (p * hz - H * ay) / (H * ey + p * ez)
-
-    def integral(p1: np.ndarray, p2: np.ndarray, s: np.ndarray) -> np.ndarray:
-        return np.abs(nrm[s, 1] * (np.hypot(p2, H) - np.hypot(p1, H))
-                      - (nrm[s, 2] * H) * (np.arcsinh(p2 / H) - np.arcsinh(p1 / H))) * (k / dr_m)
-
-    g2 = ey * ey + ez * ez
-    g1 = 2.0 * (ay * ey + (az - H) * ez)
-    g0 = ay * ay + az * (az - 2.0 * H)
-    # Most segments are short: their rays all lie in the window, the closest point to the
-    # sensor is not inside them, and both ends' hits fall in one bin. Those are added whole.
-    inside_w = (pa >= lo_w) & (pa <= hi_w) & (pb >= lo_w) & (pb <= hi_w)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        turn_u = np.where(g2 > 0, -g1 / (2.0 * g2), 0.0)
-    w_a = np.floor((np.sqrt(np.maximum(g0, 0.0)) - edge0) / dr_m).astype(np.int64)
-    w_b = np.floor((np.sqrt(np.maximum(g0 + g1 + g2, 0.0)) - edge0) / dr_m).astype(np.int64)
-    whole = inside_w & ((turn_u <= 0.0) | (turn_u >= 1.0)) & (w_a == w_b)
-    s = np.flatnonzero(whole & (w_a >= c0) & (w_a < c1))
-    echo += np.bincount(base[s] + w_a[s], weights=integral(pa[s], pb[s], s), minlength=echo.size)
-    rest = np.flatnonzero(~whole)
-    if rest.size == 0:
-        return
-    # The others: the part of the segment whose rays the window holds (p is monotone along a
-    # segment), cut at the turn of G and at the bin edges.
-    pa, pb, ay, ey, hz, ez = pa[rest], pb[rest], ay[rest], ey[rest], hz[rest], ez[rest]
-    g2, g1, g0, lo_w, hi_w, c0, c1, base, nrm = (g2[rest], g1[rest], g0[rest], lo_w[rest], hi_w[rest], c0[rest],
-                                                   c1[rest], base[rest], nrm[rest])
-    all_ = np.arange(rest.size)
-    ua = np.where((pa >= lo_w) & (pa <= hi_w), 0.0, np.clip(u_of(np.clip(pa, lo_w, hi_w)), 0.0, 1.0))
-    ub = np.where((pb >= lo_w) & (pb <= hi_w), 1.0, np.clip(u_of(np.clip(pb, lo_w, hi_w)), 0.0, 1.0))
-    ua, ub = np.minimum(ua, ub), np.maximum(ua, ub)
-    turn = np.clip(turn_u[rest], ua, ub)
-    # Two pieces per segment: [ua, turn] (G falls) and [turn, ub] (G rises).
-    seg = np.concatenate([all_, all_])
-    u_lo = np.concatenate([ua, turn])
-    u_hi = np.concatenate([turn, ub])
-    rising = np.repeat([False, True], len(ay))
-    keep = np.flatnonzero((u_hi > u_lo) & (g2[seg] > 0))
-    seg, u_lo, u_hi, rising = seg[keep], u_lo[keep], u_hi[keep], rising[keep]
-
-    def ground(u: np.ndarray, s: np.ndarray) -> np.ndarray:
-        return np.sqrt(np.maximum(g0[s] + u * (g1[s] + u * g2[s]), 0.0))
-
-    w_lo = np.floor((ground(u_lo, seg) - edge0) / dr_m).astype(np.int64)
-    w_hi = np.floor((ground(u_hi, seg) - edge0) / dr_m).astype(np.int64)
-    bins_lo = np.maximum(np.minimum(w_lo, w_hi), c0[seg])
-    bins_hi = np.minimum(np.maximum(w_lo, w_hi), c1[seg] - 1)
-    piece, col = _expand(bins_lo, bins_hi, np.full(len(seg), np.iinfo(np.int64).max), np.zeros(len(seg), np.int64))
-    s = seg[piece]
-    C2, C1 = g2[s], g1[s]
-    up = rising[piece]
-
-    def root(g: np.ndarray) -> np.ndarray:
-        """u where G(u) = g^2 on the piece's side of the turn (stable quadratic roots)."""
-        C = g0[s] - np.maximum(g, 0.0) ** 2
-        D = C1 * C1 - 4.0 * C2 * C
-        sq = np.sqrt(np.maximum(D, 0.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            plus = np.where(C1 >= 0, -2.0 * C / (C1 + sq), (-C1 + sq) / (2.0 * C2))
-            minus = np.where(C1 >= 0, -(C1 + sq) / (2.0 * C2), 2.0 * C / (-C1 + sq))
-        r = np.where(up, plus, minus)
-        r = np.where(np.isfinite(r), r, -C1 / (2.0 * C2))
-        # No root: G stays above g^2, the edge lies before a rising piece, after a falling one.
-        return np.where(D < 0.0, np.where(up, -np.inf, np.inf), r)
-
-    lo_u, hi_u = u_lo[piece], u_hi[piece]
-    e1 = np.clip(root(edge0 + col * dr_m), lo_u, hi_u)
-    e2 = np.clip(root(edge0 + (col + 1) * dr_m), lo_u, hi_u)
-    echo += np.bincount(base[s] + col, weights=integral(p_of(e1, s), p_of(e2, s), s), minlength=echo.size)
+range (:func:`~.strips.strip_shadow`, :func:`~.strips.strip_echo`)."""
 
 
 def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: float, dx_m: float,
@@ -537,7 +237,7 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
     J = len(ws)
     frac = (np.arange(k) + 0.5) / k - 0.5
     edge0 = range0_m - dr_m / 2
-    tri, nrm_all, m_n, facing = _surfaces([w for _, w in ws])
+    tri, nrm_all, m_n, facing = surfaces([w for _, w in ws])
     geo = np.array([(w.i0, w.i1, w.c0, w.c1, w.cs0, w.cs1, w.lo[2] < 0.0) for _, w in ws], dtype=np.int64)
     i0, i1, c0, c1, cs0, cs1, buried = geo.T
     nr, nc = i1 - i0, c1 - c0
@@ -549,7 +249,7 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
     zeros = np.zeros(J, dtype=np.int64)
 
     # Planes: the x of every sub-row, as trace() has them.
-    pt, pl = _expand(zeros, s_n - 1, s_n, zeros)
+    pt, pl = expand_ranges(zeros, s_n - 1, s_n, zeros)
     xs = (i0[pt] + pl // k + frac[pl % k]) * dx_m
 
     # Segments: each triangle cut by the planes within its along-track extent (one plane of
@@ -571,9 +271,10 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
         v0 = tri[:, 0]
         f0 = nrm_all[:, 1] * v0[:, 1] + nrm_all[:, 2] * (v0[:, 2] - H) + nrm_all[:, 0] * v0[:, 0]
         span = np.abs(nrm_all[:, 0]) * step
-        back = (f_tri != 0) & (f_tri * (f0 - nrm_all[:, 0] * x_lo) > span) & (f_tri * (f0 - nrm_all[:, 0] * x_hi) > span)
+        back = ((f_tri != 0) & (f_tri * (f0 - nrm_all[:, 0] * x_lo) > span)
+                & (f_tri * (f0 - nrm_all[:, 0] * x_hi) > span))
         p_hi = np.where(back, -1, p_hi)
-    ti, gp = _expand(p_lo, p_hi, s_n[tt], s_off[tt])          # (triangle, global plane)
+    ti, gp = expand_ranges(p_lo, p_hi, s_n[tt], s_off[tt])          # (triangle, global plane)
     d = tx[ti] - xs[gp][:, None]                               # signed distances of the 3 vertices
     pos = d >= 0.0                                             # a vertex on the plane counts as positive
     p0, p1, p2 = pos[:, 0], pos[:, 1], pos[:, 2]
@@ -609,21 +310,21 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
             st, nrm, a, b, pa, pb, gp = st[keep], nrm[keep], a[keep], b[keep], pa[keep], pb[keep], gp[keep]
         lo_p, hi_p = np.minimum(pa, pb), np.maximum(pa, pb)
         if engine == "strips":
-            strip = _strip_targets(st, gp, lo_p, hi_p, facing, J, tol=1e-6 * dr_m)[st]
+            strip = strip_targets(st, gp, lo_p, hi_p, facing, J, tol=1e-6 * dr_m)[st]
             if strip.any():
                 s = np.flatnonzero(strip)
                 base = px_off[st[s]] + ((gp[s] - s_off[st[s]]) // k) * nc[st[s]] - c0[st[s]]
                 lo_w = edge0 + cs0[st[s]] * dr_m                  # the seabed the window's rays reach
                 hi_w = edge0 + cs1[st[s]] * dr_m
-                _strip_shadow(hid_px, diff, base, np.maximum(lo_p[s], lo_w), np.minimum(hi_p[s], hi_w),
-                              edge0=edge0, dr_m=dr_m, k=k, col_end=cs1[st[s]])
-                _strip_echo(echo, base, a[s], b[s], nrm[s], pa[s], pb[s], lo_w, hi_w, c0[st[s]], c1[st[s]], H=H, edge0=edge0,
-                            dr_m=dr_m, k=k)
+                strip_shadow(hid_px, diff, base, np.maximum(lo_p[s], lo_w), np.minimum(hi_p[s], hi_w),
+                             edge0=edge0, dr_m=dr_m, k=k, col_end=cs1[st[s]])
+                strip_echo(echo, base, a[s], b[s], nrm[s], pa[s], pb[s], lo_w, hi_w, c0[st[s]], c1[st[s]], H=H,
+                           edge0=edge0, dr_m=dr_m, k=k)
                 rest = np.flatnonzero(~strip)
                 st, nrm, a, b, gp, lo_p, hi_p = st[rest], nrm[rest], a[rest], b[rest], gp[rest], lo_p[rest], hi_p[rest]
     if ti.size and st.size:
         # The seabed points of the rays (y of every sub-column), as trace() has them.
-        yt, yq = _expand(zeros, q_n - 1, q_n, zeros)
+        yt, yq = expand_ranges(zeros, q_n - 1, q_n, zeros)
         y_all = range0_m + (cs0[yt] + yq // k + frac[yq % k]) * dr_m
         dlen_all = np.hypot(y_all, H)
         y_col = cs0[yt] + yq // k                             # tile column of each seabed point
@@ -655,7 +356,7 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
         ey, ez = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1]
         num = ay * ez - az * ey
         hey = -H * ey
-        si, yi = _expand(r_lo, r_hi, qs, y0)
+        si, yi = expand_ranges(r_lo, r_hi, qs, y0)
         ys = y_all[yi]
         denom = ys * ez[si] - hey[si]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -665,8 +366,8 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
         # the target's longest |D| (and a factor 2 for rounding), then per pair there.
         seg_len = np.hypot(ey, ez)
         d_lo, d_hi = y_at(r_lo) * ez - hey, y_at(r_hi) * ez - hey
-        maybe = (r_hi >= r_lo) & ((np.sign(d_lo) != np.sign(d_hi))
-                                  | (np.minimum(np.abs(d_lo), np.abs(d_hi)) <= 2.0 * _PARALLEL_EPS * dmax[st] * seg_len))
+        near_zero = np.minimum(np.abs(d_lo), np.abs(d_hi)) <= 2.0 * _PARALLEL_EPS * dmax[st] * seg_len
+        maybe = (r_hi >= r_lo) & ((np.sign(d_lo) != np.sign(d_hi)) | near_zero)
         if maybe.any():
             cand = np.flatnonzero(maybe[si])
             par = cand[np.abs(denom[cand]) <= _PARALLEL_EPS * dlen_all[yi[cand]] * seg_len[si[cand]]]

@@ -19,15 +19,16 @@ POOLED = 8
 CAP = 10
 
 
-@pytest.fixture(scope="module")
-def setup():
-    s = Settings()
-    ims = synthetic_images(1, settings=s, rows=512, cols=500, seed=7, seabed="sand")
-    return s, ims[0]
-
-
 def _with(s: Settings, **cal) -> Settings:
     return s.replace(calibration=dataclasses.replace(s.calibration, **cal))
+
+
+@pytest.fixture(scope="module")
+def setup():
+    """Settings with the early stop on (off by default), and one image."""
+    s = _with(Settings(), converge_pd=0.02)
+    ims = synthetic_images(1, settings=s, rows=512, cols=500, seed=7, seabed="sand")
+    return s, ims[0]
 
 
 def _dobeck(x: np.ndarray, pd: float) -> float:
@@ -91,7 +92,7 @@ def test_an_image_stops_at_the_first_iteration_its_rule_holds(setup):
 
 def test_the_cap_and_the_switch(setup):
     s, image = setup
-    for settings in (_with(s, converge_pd=0.0), _with(s, converge_tau=0.0), _with(s, converge_pd=1e-6)):
+    for settings in (Settings(), _with(s, converge_pd=0.0), _with(s, converge_tau=0.0), _with(s, converge_pd=1e-6)):
         assert _collect(settings, image, 4).provenance["iterations_done"] == [4]
     assert _collect(s, image, 4, pooled=None).provenance["iterations_done"] == [4]  # no pooling known: no rule
 
@@ -104,7 +105,7 @@ def test_more_images_pooled_stop_sooner(setup):
 
 
 def test_any_split_between_processes_gives_the_same_parts():
-    s = Settings()
+    s = _with(Settings(), converge_pd=0.02)
     ims = synthetic_images(3, settings=s, rows=300, cols=400, seed=9, seabed="silt")
     usable, _ = usable_images(ims, settings=s)
     kw = dict(settings=s, iterations=6, targets_per_image=20, seed=4)

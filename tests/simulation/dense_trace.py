@@ -8,34 +8,15 @@ import numpy as np
 
 from atr_node.simulation.meshes import Mesh
 from atr_node.errors import GeometryError
-from atr_node.simulation.raytrace import (_PARALLEL_EPS, Signature, TraceWindow, _clip_above_seabed, _empty, slice_mesh,
+from atr_node.simulation.window import TraceWindow
+from atr_node.simulation.raytrace import (_PARALLEL_EPS, Signature, _clip_above_seabed, _empty, slice_mesh,
                                           trace_window)
 
 
 def dense_trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
-          altitude_m: float, subrays: int = 2, window: TraceWindow | None = None) -> Signature:
-    """Trace a placed target (tile frame, see :func:`~.meshes.place`) into proportion maps.
-
-    Parameters
-    ----------
-    mesh
-        The target in the tile frame (metres).
-    range0_m, dr_m, dx_m
-        Ground range of column 0, range-bin and ping spacing.
-    rows, cols
-        Tile size; the returned window is clipped to it.
-    altitude_m
-        Sensor altitude H above the seabed.
-    subrays
-        k: k x k sub-rays per pixel.
-    window
-        :func:`trace_window` of the same mesh and geometry, when the caller has it already.
-
-    Returns
-    -------
-    Signature
-        Empty when the target is outside the tile or entirely buried.
-    """
+                altitude_m: float, subrays: int = 2, window: TraceWindow | None = None) -> Signature:
+    """:func:`atr_node.simulation.raytrace.trace` as it was: every plane x segment x ray
+    tested, one target per call. Same parameters and result."""
     k = int(subrays)
     if k < 1:
         raise GeometryError(f"subrays must be >= 1, got {subrays}")

@@ -305,8 +305,7 @@ approximates:
 - detector precision (float32 tables) and decimation (2, 4): the scores, max |difference| /
   std of the full-precision scores over the mission's first tile;
 - sub-rays (k = 1, 4 against 2), the strips signature engine (k = 2, against rays) and
-  calibration size (no early stop at convergence: 10 iterations; 3 and 20 iterations,
-  against the default's early stop):
+  calibration size (early stop at convergence; on-line iterations 3, 20 against 10):
   the calibrated P(y) curves, mean |difference| over detectors and range bins, and the
   thresholds, max relative difference;
 - grid cell size (0.25 m, 1.0 m against 0.5 m): the positions, median distance from each
@@ -328,19 +327,19 @@ def options(base):
     d, sim, cal, fus = base.detectors, base.simulation, base.calibration, base.fusion
     rep = base.replace
     return [
-        ("default (float64, decimation 1, k = 2, rays, up to 10 iterations, 0.5 m cells, on-line)", base, True),
+        ("default (float64, decimation 1, k = 2, rays, 10 iterations, 0.5 m cells, on-line)", base, True),
         ("detectors: float32 tables", rep(detectors=dataclasses.replace(d, precision="float32")), True),
         ("detectors: decimation 2", rep(detectors=dataclasses.replace(d, decimation=2)), True),
         ("detectors: decimation 4", rep(detectors=dataclasses.replace(d, decimation=4)), True),
         ("simulation: 1 x 1 sub-rays", rep(simulation=dataclasses.replace(sim, subrays=1)), True),
         ("simulation: 4 x 4 sub-rays", rep(simulation=dataclasses.replace(sim, subrays=4)), True),
         ("simulation: strips engine, k = 2", rep(simulation=dataclasses.replace(sim, engine="strips")), True),
-        ("calibration: no early stop (10 iterations per tile)",
-         rep(calibration=dataclasses.replace(cal, converge_pd=0.0)), True),
-        ("calibration: 3 iterations per tile, no early stop",
-         rep(calibration=dataclasses.replace(cal, online_iterations=3, converge_pd=0.0)), True),
-        ("calibration: 20 iterations per tile, no early stop",
-         rep(calibration=dataclasses.replace(cal, online_iterations=20, converge_pd=0.0)), True),
+        ("calibration: early stop at convergence (converge_pd 0.02)",
+         rep(calibration=dataclasses.replace(cal, converge_pd=0.02)), True),
+        ("calibration: early stop at convergence (converge_pd 0.015)",
+         rep(calibration=dataclasses.replace(cal, converge_pd=0.015)), True),
+        ("calibration: 3 iterations per tile", rep(calibration=dataclasses.replace(cal, online_iterations=3)), True),
+        ("calibration: 20 iterations per tile", rep(calibration=dataclasses.replace(cal, online_iterations=20)), True),
         ("grid: 0.25 m cells", rep(fusion=dataclasses.replace(fus, cell_m=0.25)), True),
         ("grid: 1.0 m cells", rep(fusion=dataclasses.replace(fus, cell_m=1.0)), True),
         ("on-line calibration off (shipped model)", base, False),
