@@ -190,16 +190,18 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
     can meet:
 
     * a triangle is sliced only by the planes within its along-track extent;
-    * a segment is tested only against the rays whose seabed point lies in its shadow
-      interval (an index range: the rays are evenly spaced), not against every ray;
-    * the ray-segment parameter ``t = N / (y E_z + H E_y)`` has its numerator per segment;
-    * the first hit of a ray is a scatter-minimum of ``t`` (ties: the segment :func:`trace`
-      meets first), not a sort;
+    * a segment meets only the rays whose seabed point lies in its shadow interval: an index
+      range (the rays are evenly spaced), made exact against the rays' own y, not a test of
+      every ray;
+    * the ray-segment parameter ``t = N / (y E_z + H E_y)`` has its numerator per segment,
+      and the parallel case is looked for only where the denominator can reach 0;
+    * a ray met by one segment only has its first hit; elsewhere the first hit is a
+      scatter-minimum of ``t`` (ties: the segment :func:`trace` meets first), not a sort;
     * on a closed, consistently wound mesh, segments facing away from the sensor are
       dropped: a ray from outside meets a front face first (its normal is constant along a
       segment, and so is the sign of ``n . (A - S)``). A ray through a silhouette edge, where
       front and back meet at the same ``t``, may then take the front face's normal; that is
-      the only difference from testing every segment (none was seen on 800 varied targets:
+      the only difference from testing every segment (none was seen on 360 varied targets:
       ``tests/simulation/test_signature_engine.py``).
 
     With ``engine="strips"`` the k planes of a row are not sampled by rays along range: the
