@@ -19,7 +19,7 @@ from ..config import CalibrationSettings, ThresholdSettings
 from . import looks as _looks
 from .looks import area_prior
 from .model import DetectorPerformance, PerformanceModel
-from .responses import MIN_NOMINAL, Responses
+from .responses import Responses, thresholds_on_nominal
 from .stats import confidence_curve, dobeck_threshold, pd_curve, range_edges
 
 
@@ -77,7 +77,7 @@ def estimate_model(responses: Responses, *, calibration: CalibrationSettings,
     # of a target of the size and echo the detectors were designed for; the varied rest then
     # shows, in P(y), how often the targets users meet reach it (issue 17 item 5).
     nominal = responses.nominal
-    on_nominal = calibration.population.threshold_on == "nominal" and int(nominal.sum()) >= MIN_NOMINAL
+    on_nominal = thresholds_on_nominal(calibration, nominal)
     tau_from = nominal if on_nominal else None
     prior, prior_info = cell_prior(calibration, responses.provenance)
     dets = {}

@@ -211,6 +211,12 @@ MIN_NOMINAL = 20
 with fewer it reads the whole population (and the provenance says so)."""
 
 
+def thresholds_on_nominal(calibration: Any, nominal: np.ndarray) -> bool:
+    """Whether Dobeck's thresholds read the nominal targets only (``population.threshold_on =
+    "nominal"`` and at least :data:`MIN_NOMINAL` of them) or the whole population."""
+    return calibration.population.threshold_on == "nominal" and int(np.sum(nominal)) >= MIN_NOMINAL
+
+
 class Convergence:
     """When one image's iterations may stop (issue 19): after each iteration from the second,
     for every detector,
@@ -227,10 +233,8 @@ class Convergence:
     process collects which image, and the same model for the same tiles, settings and seed."""
 
     def __init__(self, calibration: Any, pooled: int) -> None:
-        self.tau_tol = float(getattr(calibration, "converge_tau", 0.0))
-        self.pd_tol = float(getattr(calibration, "converge_pd", 0.0))
-        self.pd_target = float(calibration.pd_target)
-        self.on_nominal = getattr(getattr(calibration, "population", None), "threshold_on", "nominal") == "nominal"
+        self.calibration = calibration
+        self.tau_tol, self.pd_tol = float(calibration.converge_tau), float(calibration.converge_pd)
         self.scale = math.sqrt(max(1, int(pooled)))
         self.last: dict[str, float] = {}
 
@@ -244,7 +248,7 @@ class Convergence:
         from .stats import dobeck_threshold, wilson_interval
 
         nom = np.asarray(nominal, dtype=float) > 0
-        use_nominal = self.on_nominal and int(nom.sum()) >= MIN_NOMINAL
+        use_nominal = thresholds_on_nominal(self.calibration, nom)
         ok, first = True, not self.last
         for d, values in target.items():
             x = np.asarray(values, dtype=np.float64)
@@ -252,7 +256,7 @@ class Convergence:
             sel = sel[np.isfinite(sel)]
             if sel.size == 0:
                 return False
-            tau = dobeck_threshold(sel, self.pd_target, default=0.0)
+            tau = dobeck_threshold(sel, self.calibration.pd_target, default=0.0)
             finite = x[np.isfinite(x)]
             q1, q3 = np.percentile(finite, [25.0, 75.0])
             moved = abs(tau - self.last.get(d, math.inf))

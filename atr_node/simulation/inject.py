@@ -24,7 +24,7 @@ from ..config import PopulationSettings, SensorSettings, SimulationSettings, Tem
 from ..errors import GeometryError
 from .meshes import Mesh, builtin_mesh, place
 from .performance import SonarModel
-from .raytrace import Signature, trace_many, trace_window
+from .raytrace import Signature, TraceWindow, trace_many, trace_window
 from .signature import (along_track_kernel, background_curve, blur_along_track, blurred_footprint, draw_speckle,
                         render)
 
@@ -215,6 +215,18 @@ the reference the tests compare with), at a small part of the cost where the til
 (issue 19: 97 % of the traces of an on-line calibration were refused afterwards)."""
 
 
+@dataclass
+class _Ready:
+    """A placement with its window, checked and ready to trace; ``speckle`` is drawn at
+    placement when the tile's targets are traced in one batch."""
+
+    p: Placement
+    local: Mesh
+    window: TraceWindow
+    kernel: np.ndarray
+    speckle: tuple[np.ndarray, np.ndarray] | None = None
+
+
 def _anchor_taken(p: Placement, taken: list[tuple[int, int, int, int]], gap: tuple[int, int], *, range0_m: float,
                   dr_m: float) -> bool:
     """Whether the pixel of ``p``'s centre (row ``p.row``, range ``p.range_m``) lies in a placed
@@ -321,16 +333,7 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
 
     engine = simulation.engine
 
-    @dataclass
-    class Ready:
-        """A placement with its window, checked and ready to trace."""
-        p: Placement
-        local: Mesh
-        window: object
-        kernel: np.ndarray
-        speckle: tuple[np.ndarray, np.ndarray] | None = None
-
-    def prepare(p: Placement, check: bool) -> Ready | None:
+    def prepare(p: Placement, check: bool) -> _Ready | None:
         early = check and PRECHECK
         if early and taken and _anchor_taken(p, taken, gap, range0_m=range0_m, dr_m=dr_m):
             return None  # its window holds its anchor, which a placed target's area holds: refused
@@ -346,17 +349,19 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         kernel = _kernel(round(p.range_m, 1), dx_m, sensor)
         if early and refused(blurred_footprint(window.footprint, kernel, rows)):
             return None
-        return Ready(p, local, window, kernel)
+        return _Ready(p, local, window, kernel)
 
     def usable(sig: Signature) -> bool:
         return not (sig.empty or (sig.echo.max() <= 0 and sig.p_shadow.max() <= 0))
 
-    def finish(r: Ready, sig: Signature, check: bool) -> bool:
+    def finish(r: _Ready, sig: Signature, check: bool) -> tuple[int, int, int, int] | None:
+        """Blend a traced placement into the host and record it: its footprint, or None when
+        the checks on the traced signature refuse it (``check`` without :data:`PRECHECK`)."""
         p = r.p
         sig = blur_along_track(sig, r.kernel, rows)
         fp = sig.footprint
         if check and not PRECHECK and refused(fp):
-            return False
+            return None
         # Reflectivity scales the echo intensity only: the shadow is the seabed's business.
         rho_e_t = rho_e if p.reflectivity_db == 0.0 else rho_e * 10.0 ** (p.reflectivity_db / 10.0)
         render(host, sig, g=g, rho_shadow=rho_s, rho_echo=rho_e_t, rng=rng, kind=kind, speckle=r.speckle)
@@ -372,11 +377,9 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
                                       pitch_deg=float(p.pitch_deg),
                                       height_m=max(r.local.height_m - float(p.burial_m), 0.0),
                                       nominal=bool(p.nominal)))
-        if not (check and PRECHECK):
-            taken.append(fp)
-        return True
+        return fp
 
-    def trace_all(ready: list[Ready]) -> list[Signature]:
+    def trace_all(ready: list[_Ready]) -> list[Signature]:
         return trace_many([r.window for r in ready], range0_m=range0_m, dr_m=dr_m, dx_m=dx_m, altitude_m=H,
                           subrays=k, engine=engine)
 
@@ -388,9 +391,11 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         sig = trace_all([r])[0]
         if not usable(sig):
             return False
-        if check and PRECHECK:
-            taken.append(blurred_footprint(r.window.footprint, r.kernel, rows))
-        return finish(r, sig, check)
+        fp = finish(r, sig, check)
+        if fp is None:
+            return False
+        taken.append(fp)
+        return True
 
     # Random targets keep the SMF context window (SPEC 2.3) of each other and of the edges.
     gap = (int(math.ceil(template.context_factor * template.length_m / dx_m / 2)),
@@ -403,7 +408,7 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         sigs = iter(trace_all(live) if BATCH else [trace_all([r])[0] for r in live])
         for p, r in zip(placements, ready):
             sig = next(sigs) if r is not None else None
-            if sig is None or not usable(sig) or not finish(r, sig, False):
+            if sig is None or not usable(sig) or finish(r, sig, False) is None:
                 log.info("target %s at row %.1f, range %.1f m is outside the tile: skipped", p.shape, p.row, p.range_m)
         return host, targets
     n = int(n_targets or 0)
@@ -416,12 +421,18 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         return draw_placement(rng, row_span=(gap[0], rows - gap[0]), range_span_m=(lo, hi), population=population,
                               shapes=shapes, max_burial_m=max_burial_m)
 
+    def one_by_one() -> None:
+        for _ in range(n):
+            for _try in range(max_tries):
+                if do(draw(), check=True):
+                    break
+
     if BATCH and PRECHECK:
         # Place every target first, drawing each one's speckle as the sequential order does
         # right after its placement (its footprint, and so the speckle's shape, is known from
         # the window); then trace them all in one batch and render them in order.
         start = rng.bit_generator.state
-        ready: list[Ready] = []
+        ready: list[_Ready] = []
         for _ in range(n):
             for _try in range(max_tries):
                 r = prepare(draw(), True)
@@ -440,15 +451,9 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
             # would have drawn again there. Replay that order from the same generator state.
             rng.bit_generator.state = start
             taken.clear()
-            for _ in range(n):
-                for _try in range(max_tries):
-                    if do(draw(), check=True):
-                        break
+            one_by_one()
     else:
-        for _ in range(n):
-            for _try in range(max_tries):
-                if do(draw(), check=True):
-                    break
+        one_by_one()
     if len(targets) < n:
         log.info("placed %d of %d targets: the tile has no room for more", len(targets), n)
     return host, targets

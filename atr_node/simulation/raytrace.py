@@ -31,7 +31,7 @@ from .meshes import Mesh
 from .strips import expand_ranges, strip_echo, strip_shadow, strip_targets
 from .window import TraceWindow, surfaces, trace_window
 
-__all__ = ["ENGINES", "Signature", "TraceWindow", "slice_mesh", "trace", "trace_many", "trace_window"]
+__all__ = ["ENGINES", "Signature", "TraceWindow", "trace", "trace_many", "trace_window"]
 
 _PARALLEL_EPS = 1e-9  # |sin| between a ray and a segment below which they are parallel
 
@@ -80,53 +80,6 @@ class Signature:
 def _empty() -> Signature:
     z = np.zeros((0, 0), dtype=np.float32)
     return Signature(0, 0, z, z)
-
-
-def slice_mesh(tri: np.ndarray, x_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Cut triangles by the planes ``x = x_m``, packing each plane's segments to the left.
-
-    Parameters
-    ----------
-    tri : ndarray, shape (m, 3, 3)
-        Triangle vertices.
-    x_m : ndarray, shape (s,)
-        Plane positions.
-
-    Returns
-    -------
-    a, b : ndarray, shape (s, m', 2)
-        Segment end points (y, z) in each plane; m' = the most segments any plane has.
-    index : ndarray, shape (s, m'), int
-        Triangle of each segment.
-    valid : ndarray, shape (s, m'), bool
-        False for padding.
-    """
-    s = x_m.size
-    d = tri[None, :, :, 0] - x_m[:, None, None]            # (s, m, 3) signed distances
-    pos = d >= 0.0                                          # a vertex on the plane counts as positive
-    npos = pos.sum(axis=2)
-    si, ti = np.nonzero((npos == 1) | (npos == 2))          # (plane, triangle) pairs that cross; si sorted
-    if si.size == 0:
-        z = np.zeros((s, 0, 2))
-        return z, z, np.zeros((s, 0), dtype=np.int64), np.zeros((s, 0), dtype=bool)
-    pp, dp = pos[si, ti], d[si, ti]                         # (P, 3)
-    # The lone vertex, on its own side of the plane: its two edges are the crossing ones.
-    lone = np.where(npos[si, ti] == 1, np.argmax(pp, axis=1), np.argmin(pp, axis=1))
-    P = np.arange(si.size)
-    o1, o2 = (lone + 1) % 3, (lone + 2) % 3
-    v = tri[ti]                                             # (P, 3, 3)
-    vl, dl = v[P, lone, 1:], dp[P, lone]
-    a = vl + (dl / (dl - dp[P, o1]))[:, None] * (v[P, o1, 1:] - vl)
-    b = vl + (dl / (dl - dp[P, o2]))[:, None] * (v[P, o2, 1:] - vl)
-    counts = np.bincount(si, minlength=s)
-    rank = P - (np.cumsum(counts) - counts)[si]
-    m_used = int(counts.max())
-    A = np.zeros((s, m_used, 2))
-    B = np.zeros((s, m_used, 2))
-    index = np.zeros((s, m_used), dtype=np.int64)
-    valid = np.zeros((s, m_used), dtype=bool)
-    A[si, rank], B[si, rank], index[si, rank], valid[si, rank] = a, b, ti, True
-    return A, B, index, valid
 
 
 def _clip_above_seabed(a: np.ndarray, b: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -255,8 +208,9 @@ def trace_many(windows: "list[TraceWindow | None]", *, range0_m: float, dr_m: fl
     xs = (i0[pt] + pl // k + frac[pl % k]) * dx_m
 
     # Segments: each triangle cut by the planes within its along-track extent (one plane of
-    # slack for rounding, then the exact test of slice_mesh). Triangle-major: within a plane,
-    # the segments keep slice_mesh's triangle order, which is all the ties depend on.
+    # slack for rounding, then the exact test: a vertex on the plane counts as positive).
+    # Triangle-major: within a plane the segments keep the triangles' order, which is all the
+    # ties depend on.
     tt = np.repeat(np.arange(J), m_n)                         # target of each triangle
     tx = tri[:, :, 0]
     step = dx_m / k

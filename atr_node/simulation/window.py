@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cached_property, lru_cache
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -35,37 +35,21 @@ def _facet_normals(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return n[keep] / norm[keep, None], keep, (n * tri[:, 0]).sum(axis=1)
 
 
-_CLOSED_BY_FACES: dict[int, tuple[np.ndarray, bool]] = {}
+_TOPOLOGY: dict[int, tuple[np.ndarray, bool, int]] = {}
+"""Per faces array (meshes scaled, tilted and placed share theirs; the array is held, so its
+id cannot be reused): whether it closes a surface, and how many vertices it uses."""
 
 
-def _closed_faces(faces: np.ndarray, keep: np.ndarray) -> bool:
-    """:func:`_closed` of the kept faces; remembered per faces array (meshes scaled, tilted
-    and placed share their faces), whose identity is held so it cannot be reused."""
-    if not keep.all():
-        return _closed(faces[keep].tobytes())
-    hit = _CLOSED_BY_FACES.get(id(faces))
+def _topology(faces: np.ndarray) -> tuple[bool, int]:
+    """(:func:`_closed` of ``faces``, the number of distinct vertices they use), worked out
+    once per faces array."""
+    hit = _TOPOLOGY.get(id(faces))
     if hit is not None and hit[0] is faces:
-        return hit[1]
-    if len(_CLOSED_BY_FACES) > 256:
-        _CLOSED_BY_FACES.clear()
-    out = _closed(faces.tobytes())
-    _CLOSED_BY_FACES[id(faces)] = (faces, out)
-    return out
-
-
-_ALL_USED: dict[int, tuple[np.ndarray, int, bool]] = {}
-
-
-def _faces_use_all(faces: np.ndarray, n_vertices: int) -> bool:
-    """Whether every vertex is a corner of some face (then the vertices' bounding box is the
-    triangles'); remembered per faces array, as :func:`_closed_faces`."""
-    hit = _ALL_USED.get(id(faces))
-    if hit is not None and hit[0] is faces and hit[1] == n_vertices:
-        return hit[2]
-    if len(_ALL_USED) > 256:
-        _ALL_USED.clear()
-    out = bool(np.unique(faces).size == n_vertices)
-    _ALL_USED[id(faces)] = (faces, n_vertices, out)
+        return hit[1], hit[2]
+    if len(_TOPOLOGY) > 256:
+        _TOPOLOGY.clear()
+    out = (_closed(faces), int(np.unique(faces).size))
+    _TOPOLOGY[id(faces)] = (faces, *out)
     return out
 
 
@@ -81,16 +65,16 @@ def surfaces(windows: "Sequence[TraceWindow]") -> tuple[np.ndarray, np.ndarray, 
     vol6 = np.add.reduceat(vol, starts) if tri_all.size else np.zeros(len(windows))
     facing = np.zeros(len(windows), dtype=np.int64)
     for j, w in enumerate(windows):
-        if vol6[j] != 0.0 and _closed_faces(w.faces, keep[starts[j]:starts[j] + counts[j]]):
+        kept_j = keep[starts[j]:starts[j] + counts[j]]
+        closed = _topology(w.faces)[0] if kept_j.all() else _closed(w.faces[kept_j])
+        if vol6[j] != 0.0 and closed:
             facing[j] = 1 if vol6[j] > 0 else -1
     return tri_all[keep], normals, kept, facing
 
 
-@lru_cache(maxsize=256)
-def _closed(faces: bytes) -> bool:
-    """Whether triangles (int64 (m, 3) as bytes) close a surface with consistent winding:
+def _closed(f: np.ndarray) -> bool:
+    """Whether triangles (int (m, 3) vertex indices) close a surface with consistent winding:
     every directed edge once, and its reverse once."""
-    f = np.frombuffer(faces, dtype=np.int64).reshape(-1, 3)
     if f.size == 0:
         return False
     a, b = f.reshape(-1), np.roll(f, -1, axis=1).reshape(-1)
@@ -112,7 +96,6 @@ class TraceWindow:
     tri_all: np.ndarray
     faces: np.ndarray
     lo: np.ndarray
-    zmax: float
     i0: int
     i1: int
     c0: int
@@ -151,7 +134,8 @@ def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows:
     tri_all = mesh.triangles_m
     if len(tri_all) == 0:
         return None
-    v = mesh.vertices_m if _faces_use_all(mesh.faces, len(mesh.vertices_m)) else tri_all.reshape(-1, 3)
+    # the vertices' bounding box is the triangles' when every vertex is a corner of some face
+    v = mesh.vertices_m if _topology(mesh.faces)[1] == len(mesh.vertices_m) else tri_all.reshape(-1, 3)
     lo, hi = v.min(axis=0), v.max(axis=0)
     zmax = min(hi[2], H)
     if zmax <= 0.0 or hi[1] <= 0.0:
@@ -172,4 +156,4 @@ def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows:
     c0, c1 = min(cs0, ce0), cs1
     if i1 <= i0 or c1 <= c0 or cs1 <= cs0:
         return None
-    return TraceWindow(tri_all, mesh.faces, lo, float(zmax), i0, i1, c0, c1, cs0, cs1)
+    return TraceWindow(tri_all, mesh.faces, lo, i0, i1, c0, c1, cs0, cs1)

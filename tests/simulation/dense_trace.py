@@ -9,8 +9,54 @@ import numpy as np
 from atr_node.simulation.meshes import Mesh
 from atr_node.errors import GeometryError
 from atr_node.simulation.window import TraceWindow
-from atr_node.simulation.raytrace import (_PARALLEL_EPS, Signature, _clip_above_seabed, _empty, slice_mesh,
-                                          trace_window)
+from atr_node.simulation.raytrace import _PARALLEL_EPS, Signature, _clip_above_seabed, _empty, trace_window
+
+
+def slice_mesh(tri: np.ndarray, x_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Cut triangles by the planes ``x = x_m``, packing each plane's segments to the left.
+
+    Parameters
+    ----------
+    tri : ndarray, shape (m, 3, 3)
+        Triangle vertices.
+    x_m : ndarray, shape (s,)
+        Plane positions.
+
+    Returns
+    -------
+    a, b : ndarray, shape (s, m', 2)
+        Segment end points (y, z) in each plane; m' = the most segments any plane has.
+    index : ndarray, shape (s, m'), int
+        Triangle of each segment.
+    valid : ndarray, shape (s, m'), bool
+        False for padding.
+    """
+    s = x_m.size
+    d = tri[None, :, :, 0] - x_m[:, None, None]            # (s, m, 3) signed distances
+    pos = d >= 0.0                                          # a vertex on the plane counts as positive
+    npos = pos.sum(axis=2)
+    si, ti = np.nonzero((npos == 1) | (npos == 2))          # (plane, triangle) pairs that cross; si sorted
+    if si.size == 0:
+        z = np.zeros((s, 0, 2))
+        return z, z, np.zeros((s, 0), dtype=np.int64), np.zeros((s, 0), dtype=bool)
+    pp, dp = pos[si, ti], d[si, ti]                         # (P, 3)
+    # The lone vertex, on its own side of the plane: its two edges are the crossing ones.
+    lone = np.where(npos[si, ti] == 1, np.argmax(pp, axis=1), np.argmin(pp, axis=1))
+    P = np.arange(si.size)
+    o1, o2 = (lone + 1) % 3, (lone + 2) % 3
+    v = tri[ti]                                             # (P, 3, 3)
+    vl, dl = v[P, lone, 1:], dp[P, lone]
+    a = vl + (dl / (dl - dp[P, o1]))[:, None] * (v[P, o1, 1:] - vl)
+    b = vl + (dl / (dl - dp[P, o2]))[:, None] * (v[P, o2, 1:] - vl)
+    counts = np.bincount(si, minlength=s)
+    rank = P - (np.cumsum(counts) - counts)[si]
+    m_used = int(counts.max())
+    A = np.zeros((s, m_used, 2))
+    B = np.zeros((s, m_used, 2))
+    index = np.zeros((s, m_used), dtype=np.int64)
+    valid = np.zeros((s, m_used), dtype=bool)
+    A[si, rank], B[si, rank], index[si, rank], valid[si, rank] = a, b, ti, True
+    return A, B, index, valid
 
 
 def dense_trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
