@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -45,30 +46,30 @@ def test_replay_is_deterministic_whatever_the_worker_timing(mission):
 
 
 SUBSCRIBER = r"""
-import json, sys, time
+import json, os, sys, time
 sys.path.insert(0, sys.argv[3])
 from atr_node.node.publisher import Subscriber
 sub = Subscriber(sys.argv[1])
 out = open(sys.argv[2], "w")
-deadline = time.monotonic() + 120
-quiet_since = None
-ready = sys.argv[5]
+done, ready = sys.argv[4], sys.argv[5]
+deadline = time.monotonic() + 120  # a guard against a hang, not a timing assertion
+contacts = 0
 while time.monotonic() < deadline:
     got = sub.recv(timeout_s=0.5)
-    if got is None:
-        continue
-    topic, msg = got
-    out.write(json.dumps({"topic": topic, "msg": msg}) + "\n")
-    out.flush()
-    if ready:  # a heartbeat got through: the subscription is up (ZeroMQ's slow joiner)
-        open(ready, "w").close()
-        ready = ""
-    # every tile in and nothing waiting (a live node keeps the last leg's last rows until the
-    # next leg): a couple more heartbeats, then done
-    if topic == "heartbeat" and msg.get("tiles_in", 0) >= int(sys.argv[4]) and msg.get("queue_depth", 1) == 0:
-        quiet_since = quiet_since or time.monotonic()
-        if time.monotonic() - quiet_since > 1.0:
-            break
+    if got is not None:
+        topic, msg = got
+        out.write(json.dumps({"topic": topic, "msg": msg}) + "\n")
+        out.flush()
+        contacts += topic == "contact"
+        if ready:  # a heartbeat got through: the subscription is up (ZeroMQ's slow joiner)
+            open(ready, "w").close()
+            ready = ""
+    # the test writes how many contacts the node published once it is idle: every one of
+    # them received, done (an event, not a guess at how long a loaded machine takes)
+    if os.path.exists(done) and contacts >= int(open(done).read()):
+        break
+else:
+    sys.exit(1)  # the published contacts never all arrived
 """
 
 
@@ -96,8 +97,9 @@ def test_hil_replay_through_pty_can_zmq_into_the_node(mission, tmp_path):
     endpoint = service.publisher.endpoint
     received = tmp_path / "received.jsonl"
     ready = tmp_path / "subscribed"
+    done = tmp_path / "published"
     sub = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, endpoint, str(received),
-                            str(Path(__file__).resolve().parents[2]), str(n_tiles), str(ready)])
+                            str(Path(__file__).resolve().parents[2]), str(done), str(ready)])
     mux = LinkMux(links)
     node = threading.Thread(target=service.run_live, args=(mux,), daemon=True)
     node.start()
@@ -110,10 +112,15 @@ def test_hil_replay_through_pty_can_zmq_into_the_node(mission, tmp_path):
     player = HilPlayer(Paced(ReplayLink(files.atrlog), speed=40.0), nmea=nmea_out, can=can_out, sonar=tile_out)
     counts = player.run()
     try:
-        deadline = time.monotonic() + 120
-        while service.pipeline.stats.tiles_in < n_tiles and time.monotonic() < deadline:
+        # every tile in and nothing waiting in the worker (a live node keeps the last leg's last
+        # rows until the next leg): no contact comes after this until the node stops
+        deadline = time.monotonic() + 120  # a guard against a hang, not a timing assertion
+        while not (service.pipeline.stats.tiles_in >= n_tiles and service.pipeline.queue_depth == 0):
+            assert time.monotonic() < deadline, "the node did not process every tile"
             time.sleep(0.1)
-        sub.wait(timeout=120)
+        (tmp_path / "published.tmp").write_text(str(len(contacts)))
+        os.replace(tmp_path / "published.tmp", done)
+        assert sub.wait(timeout=120) == 0
     finally:
         service.stop()
         node.join(timeout=30)
