@@ -135,18 +135,22 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     """
     dets = tuple(responses.detectors)
     tails = {d: _looks.tail_table(responses.nontarget[d]) for d in dets}
+    kind = getattr(calibration, "look_score", "lr")
+    lrs = ({d: _looks.lr_table(responses.target[d], responses.nontarget[d], tail=tails[d]) for d in dets}
+           if kind == "lr" else None)
     sizes = {np.asarray(responses.nontarget[d]).size for d in dets}
-    info: dict[str, Any] = {"score": _looks.SCORE_DEFINITION,
+    info: dict[str, Any] = {"score": _looks.LR_SCORE_DEFINITION if lrs is not None else _looks.SCORE_DEFINITION,
                             "fired": "at least one detector of the set above its threshold",
                             "confidence": "P(T | Z >= z, fired), prior per cell as for the detectors",
                             "pd": "share of injected targets on which the set fired, per range bin"}
     if len(sizes) != 1:
         info["skipped"] = "non-target responses of the detectors are not joint (different lengths)"
-        return _looks.LookModel(tails, {}, info)
+        return _looks.LookModel(tails, {}, info, lrs)
     tables = {}
     for n in range(1, len(dets) + 1):
         for subset in itertools.combinations(dets, n):
-            z_t, f_t, z_n, f_n = _looks.look_scores(responses.target, responses.nontarget, taus, tails, subset)
+            z_t, f_t, z_n, f_n = _looks.look_scores(responses.target, responses.nontarget, taus,
+                                                    tails if lrs is None else lrs, subset)
             fired_z = np.concatenate([z_t[f_t & np.isfinite(z_t)], z_n[f_n & np.isfinite(z_n)]])
             # the fired responses above a threshold below all of them, the others below it:
             # confidence_curve's "exceedances" are then exactly the fired ones
@@ -162,4 +166,4 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
             pd_tau = float(np.mean(f_t[covered])) if covered.any() else math.nan
             tables[_looks.subset_key(subset)] = DetectorPerformance(tau=tau, confidence=conf, pyr=pyr, tau_source="look",
                                                              pd_at_tau=pd_tau)
-    return _looks.LookModel(tails, tables, info)
+    return _looks.LookModel(tails, tables, info, lrs)

@@ -5,11 +5,14 @@ independent pieces of evidence. The injection already measures their *joint* beh
 injected target and every clean template-sized cell gives all four responses at once. From
 those joint responses this module builds, per set of enabled detectors:
 
-- a **look score** ``z = sum_d u_d(gamma_d)``, with ``u_d(g) = -ln S_N,d(g)`` the detector's
-  background tail (how rare ``g`` is on target-free seabed; Fisher's way of putting p-values
-  on one scale). A detector that did not cover a place adds 0. Any monotone combination would
-  do: the confidence below is measured on ``z`` itself, so the detectors' dependence is in the
-  numbers, not assumed away;
+- a **look score** ``z = sum_d (l_d(gamma_d) + LR_TIE u_d(gamma_d))`` (``look_score = "lr"``,
+  the default): ``l_d`` the detector's log likelihood ratio of injected targets against clean
+  cells (:func:`lr_table`), negative where targets rarely respond so weakly, and ``u_d(g) =
+  -ln S_N,d(g)`` its background tail (how rare ``g`` is on target-free seabed), which here
+  only breaks ties; ``look_score = "fisher"`` sums the tails alone (Fisher's way of putting
+  p-values on one scale; never below 0, so a detector that stays low tells nothing). A
+  detector that did not cover a place adds 0. Any combination would do: the confidence below
+  is measured on ``z`` itself, so the detectors' dependence is in the numbers, not assumed away;
 - the **look confidence** ``c(z) = P(T | Z >= z, the look fired)``: the look fired where at
   least one detector exceeded its threshold (that is where the node has a detection); built by
   :func:`~atr_node.calibration.stats.confidence_curve` from the fired targets and cells, with
@@ -35,8 +38,21 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..config import DETECTOR_NAMES
+from .stats import isotonic_increasing
 
 SCORE_DEFINITION = "z = sum over detectors of -ln S_N,d(gamma_d) (background tail; 0 where not covered)"
+LR_SCORE_DEFINITION = ("z = sum over detectors of l_d(gamma_d) + 0.01 u_d(gamma_d), l_d = ln f_T,d / f_N,d "
+                       "(binned, Jeffreys, isotonic non-decreasing, clipped to +-ln 1000), u_d = -ln S_N,d "
+                       "(ties only); 0 where not covered")
+LOOK_SCORES = ("lr", "fisher")
+"""``calibration.look_score``: per-detector likelihood ratios (default) or Fisher's background tails."""
+LR_BINS = 24
+"""Bins of a detector's likelihood-ratio table: quantiles of its pooled target and background responses."""
+LR_CAP = math.log(1000.0)
+"""Largest |l_d|: no single detector's response moves the look's odds by more than 1000."""
+LR_TIE = 0.01
+"""Weight of the background tail ``u_d`` added to ``l_d``: it only breaks the ties of the
+likelihood ratio (its bins, isotonic pools and cap), so stronger responses still rank higher."""
 TAIL_POINTS = 48
 """Knots of a detector's tail table u_d."""
 TAIL_EXTRA = math.log(10.0)
@@ -112,6 +128,64 @@ def tail_table(x_n: np.ndarray, *, points: int = TAIL_POINTS) -> TailTable:
 
 
 @dataclass(frozen=True, eq=False)
+class LrTable:
+    """``l(g) = ln f_T(g) / f_N(g)`` of one detector on knots ``gamma`` (increasing), ``l``
+    non-decreasing and within +-:data:`LR_CAP`; linear between knots, flat beyond them; NaN
+    (not covered) gives 0: no evidence either way."""
+
+    gamma: np.ndarray
+    l: np.ndarray  # noqa: E741  (the symbol of the definition)
+    tail: TailTable | None = None
+    """The detector's background tail: ``LR_TIE u(g)`` is added, to break ties."""
+
+    def __call__(self, g: np.ndarray | float) -> np.ndarray:
+        g = np.asarray(g, dtype=np.float64)
+        out = np.interp(np.where(np.isnan(g), self.gamma[0], g), self.gamma, self.l)
+        if self.tail is not None:
+            out = out + LR_TIE * self.tail(g)
+        return np.where(np.isnan(g), 0.0, out)
+
+
+def lr_edges(x_t: np.ndarray, x_n: np.ndarray, *, bins: int = LR_BINS) -> np.ndarray:
+    """Bin edges of :func:`lr_table`: ``bins / 2`` quantile bins of the targets' responses and as
+    many of the background's, merged, so the ratio is resolved where either kind lies (a few
+    dozen injected targets among thousands of clean cells would otherwise share the top bin
+    with the background's tail). Finite responses only; sorted, unique."""
+    half = max(1, bins // 2)
+    q = np.linspace(0.0, 1.0, half + 1)
+    return np.unique(np.concatenate([np.quantile(np.asarray(x, dtype=np.float64), q) for x in (x_t, x_n)]))
+
+
+def lr_table(x_t: np.ndarray, x_n: np.ndarray, *, bins: int = LR_BINS, cap: float = LR_CAP,
+             tail: TailTable | None = None) -> LrTable:
+    """A detector's log likelihood ratio from its target and background responses.
+
+    Bins from :func:`lr_edges`; per bin the Jeffreys-smoothed frequencies
+    ``(k + 1/2) / (n + bins/2)`` of the targets and of the background; ``l`` = the log of their
+    ratio, made non-decreasing by a weighted isotonic fit (weights = responses in the bin: a
+    stronger response is never less target-like) and clipped to +-``cap``; knots at the bins'
+    centres. Unlike Fisher's tail ``u = -ln S_N``, which is never below 0, ``l`` is negative
+    where targets rarely respond so weakly: a detector that should have responded and did not
+    counts against the look. Without responses of either kind, a flat table (l = 0).
+    ``tail``: the detector's background tail, carried for the ties (:attr:`LrTable.tail`).
+    """
+    t = np.asarray(x_t, dtype=np.float64)
+    n = np.asarray(x_n, dtype=np.float64)
+    t, n = t[np.isfinite(t)], n[np.isfinite(n)]
+    if t.size == 0 or n.size == 0:
+        return LrTable(np.array([0.0, 1.0]), np.zeros(2), tail)
+    edges = lr_edges(t, n, bins=bins)
+    if edges.size < 2:
+        return LrTable(np.array([edges[0], edges[0] + max(abs(edges[0]), 1.0) * 1e-6]), np.zeros(2), tail)
+    k = edges.size - 1
+    ct = np.histogram(np.clip(t, edges[0], edges[-1]), edges)[0].astype(np.float64)
+    cn = np.histogram(np.clip(n, edges[0], edges[-1]), edges)[0].astype(np.float64)
+    ratio = ((ct + 0.5) / (t.size + 0.5 * k)) / ((cn + 0.5) / (n.size + 0.5 * k))
+    l = np.clip(isotonic_increasing(np.log(ratio), ct + cn + 1.0), -cap, cap)  # noqa: E741
+    return LrTable(0.5 * (edges[1:] + edges[:-1]) if k > 1 else edges.copy(), l if k > 1 else np.repeat(l, 2), tail)
+
+
+@dataclass(frozen=True, eq=False)
 class LookModel:
     """Tail tables per detector and the look tables per detector set."""
 
@@ -119,6 +193,14 @@ class LookModel:
     tables: Mapping[str, Any]
     """subset key -> :class:`~atr_node.calibration.model.DetectorPerformance` over z."""
     info: Mapping[str, Any] = field(default_factory=dict)
+    lrs: Mapping[str, LrTable] | None = None
+    """Per-detector likelihood ratios (``look_score = "lr"``): z sums these, not the tails."""
+
+    @property
+    def terms(self) -> Mapping[str, Any]:
+        """The per-detector terms z sums: the likelihood ratios where the model has them, else
+        the background tails."""
+        return self.tails if self.lrs is None else self.lrs
 
     def table(self, detectors: Sequence[str]) -> Any | None:
         """The look table of this detector set, None if the model has none for it."""
@@ -128,14 +210,15 @@ class LookModel:
         """``z`` of joint responses: ``responses[d]`` per detector of ``detectors`` (NaN = not
         covered, adds 0); detectors without a tail table add 0."""
         # canonical order: the sum's rounding does not depend on the order detectors are listed
-        us = [self.tails[d](responses[d]) for d in _canonical(detectors) if d in self.tails and d in responses]
+        terms = self.terms
+        us = [terms[d](responses[d]) for d in _canonical(detectors) if d in terms and d in responses]
         return np.zeros(np.shape(next(iter(responses.values()), 0.0))) if not us else _combine(us)
 
 
 def _combine(us: list[np.ndarray]) -> np.ndarray:
-    """z from the detectors' tails: their sum (Fisher). Measured on development scenes of the
-    held-out generator (seed 201) against their maximum and the sum of the two largest: the sum
-    gave the fewest false alarms at equal Pd (docs/fusion.md)."""
+    """z from the detectors' terms (tails or likelihood ratios): their sum. For the tails it was
+    measured on development scenes of the held-out generator (seed 201) against their maximum
+    and the sum of the two largest: the sum gave the fewest false alarms at equal Pd."""
     z = np.array(us[0], dtype=np.float64, copy=True)
     for u in us[1:]:
         z = z + u
@@ -143,9 +226,10 @@ def _combine(us: list[np.ndarray]) -> np.ndarray:
 
 
 def look_scores(target: Mapping[str, np.ndarray], nontarget: Mapping[str, np.ndarray], taus: Mapping[str, float],
-                tails: Mapping[str, TailTable], detectors: Sequence[str]
+                tails: Mapping[str, Any], detectors: Sequence[str]
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(z_t, fired_t, z_n, fired_n) of a detector set: z NaN where no detector covered."""
+    """(z_t, fired_t, z_n, fired_n) of a detector set: z NaN where no detector covered;
+    ``tails``: the per-detector terms (:attr:`LookModel.terms`)."""
     out = []
     detectors = _canonical(detectors)
     for resp in (target, nontarget):
@@ -188,7 +272,9 @@ def looks_to_dict(looks: LookModel, detector_dict) -> dict[str, Any]:
     return {"info": dict(looks.info),
             "tails": {d: {"gamma": t.gamma.tolist(), "u": t.u.tolist(), "slope": float(t.slope)}
                       for d, t in looks.tails.items()},
-            "tables": {k: detector_dict(p) for k, p in looks.tables.items()}}
+            "tables": {k: detector_dict(p) for k, p in looks.tables.items()},
+            **({} if looks.lrs is None else
+               {"lr": {d: {"gamma": t.gamma.tolist(), "l": t.l.tolist()} for d, t in looks.lrs.items()}})}
 
 
 def looks_from_dict(raw: Any, where: str, detector_from) -> LookModel:
@@ -217,12 +303,29 @@ def looks_from_dict(raw: Any, where: str, detector_from) -> LookModel:
                 or np.any(np.diff(g) <= 0) or np.any(np.diff(u) < 0) or np.any(u < 0)):
             raise err(f"tails.{d}", "gamma must be increasing and u finite, >= 0 and non-decreasing, same length >= 2")
         tails[d] = TailTable(g, u, slope)
+    lrs = None
+    if "lr" in raw:
+        if not isinstance(raw["lr"], dict):
+            raise err("lr", "expected a map detector -> {gamma, l}")
+        lrs = {}
+        for d, t in raw["lr"].items():
+            try:
+                g = np.asarray(t["gamma"], dtype=np.float64)
+                lv = np.asarray(t["l"], dtype=np.float64)
+            except (TypeError, ValueError, KeyError, AttributeError):
+                raise err(f"lr.{d}", "needs lists of numbers 'gamma' and 'l'") from None
+            if (g.ndim != 1 or g.size < 2 or lv.shape != g.shape or not np.all(np.isfinite(g))
+                    or not np.all(np.isfinite(lv)) or np.any(np.diff(g) <= 0) or np.any(np.diff(lv) < 0)):
+                raise err(f"lr.{d}", "gamma must be increasing and l finite and non-decreasing, same length >= 2")
+            if d not in tails:
+                raise err(f"lr.{d}", "a detector without a tail table")
+            lrs[str(d)] = LrTable(g, lv, tails[d])
     tables = {}
     for k, t in tables_raw.items():
         members = [m for m in str(k).split("+") if m]
-        missing = [m for m in members if m not in tails]
+        missing = [m for m in members if m not in tails or (lrs is not None and m not in lrs)]
         if not members or missing:
             raise err(f"tables.{k}", f"names detectors without a tail table: {missing or k!r}")
         tables[str(k)] = detector_from(t, where, f"looks.tables.{k}")
     info = raw.get("info") if isinstance(raw.get("info"), dict) else {}
-    return LookModel(tails, tables, info)
+    return LookModel(tails, tables, info, lrs)

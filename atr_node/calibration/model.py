@@ -135,7 +135,7 @@ class PerformanceModel:
             return dataclasses.replace(p, confidence=nc)
 
         looks = None if self.looks is None else LookModel(
-            self.looks.tails, {k: conv(p) for k, p in self.looks.tables.items()}, self.looks.info)
+            self.looks.tails, {k: conv(p) for k, p in self.looks.tables.items()}, self.looks.info, self.looks.lrs)
         est = dict(self.estimation)
         est.update({"prior_target": float(prior_target), "prior": "fixed", "prior_from": old})
         return PerformanceModel({d: conv(p) for d, p in self.detectors.items()}, self.provenance, est, looks)

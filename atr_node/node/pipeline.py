@@ -133,6 +133,40 @@ def _trackers(memory_m: float) -> tuple[BackgroundTracker, BackgroundTracker]:
             BackgroundTracker(memory_m=memory_m, statistic=column_median))
 
 
+def unit_statistics(unit: StripUnit, bg_tracker: BackgroundTracker,
+                    med_tracker: BackgroundTracker) -> tuple[np.ndarray, np.ndarray]:
+    """b(j) and m(j) a unit is scored against, the trackers updated with its core.
+
+    The trackers go on over the whole (leg, side): per ping for the mean, per unit for the
+    median. A strip's first unit carries a lookahead (its strip's first metres); it stands in
+    for the history only where the trackers have none, at the start of a leg or after a change
+    of range axis reset them. A strip that starts again in the middle of a leg (the ping
+    spacing changed by more than ``DX_TOLERANCE``, as a vehicle's speed does between a
+    recorder's tiles, or a gap in ping time) keeps the leg's background: scored against its
+    own first metres, a unit that lies in a dark patch of seabed (a rock field, a mud patch)
+    made that patch the background, and the scatterers in it stood out as bright as targets
+    (river-000_1236: 7 contacts on its rocky patch).
+    """
+    history = bg_tracker.background
+    if history is not None and history.shape[0] != unit.pixels.shape[1]:
+        # the strip of this leg and side restarted on another range axis (a tile of another
+        # mission name or range axis in the same leg; found by fuzzing): start the
+        # background afresh rather than fail
+        bg_tracker.reset()
+        med_tracker.reset()
+        history = None
+    core_px = unit.pixels[unit.core]
+    # per ping (the mean) and per unit of fixed pings (the median): the same whatever the cut
+    background = bg_tracker.update(core_px, dx_m=unit.dx_m)
+    median = med_tracker.update(core_px, dx_m=unit.dx_m)
+    if unit.lookahead is not None and history is None:
+        # the first unit of a leg: scored against the statistics of the strip's first
+        # node.first_unit_length_m (its core's and the pings after it, as the trackers would
+        # have them there), not of its own core alone; the trackers go on from its core
+        background, median = column_mean(unit.lookahead), column_median(unit.lookahead)
+    return background, median
+
+
 class Pipeline:
     """Records in (:meth:`feed`), contact messages out (``emit``).
 
@@ -560,23 +594,7 @@ class Pipeline:
         if key not in self._bg:
             self._bg = {k: v for k, v in self._bg.items() if k[0] == unit.leg}  # a new leg: forget older ones
             self._bg[key] = _trackers(self.settings.detectors.background_memory_m)
-        bg_tracker, med_tracker = self._bg[key]
-        b = bg_tracker.background
-        if b is not None and b.shape[0] != unit.pixels.shape[1]:
-            # the strip of this leg and side restarted on another range axis (a tile of another
-            # mission name or range axis in the same leg; found by fuzzing): start the
-            # background afresh rather than fail
-            bg_tracker.reset()
-            med_tracker.reset()
-        core_px = unit.pixels[unit.core]
-        # per ping (the mean) and per unit of fixed pings (the median): the same whatever the cut
-        background = bg_tracker.update(core_px, dx_m=unit.dx_m)
-        median = med_tracker.update(core_px, dx_m=unit.dx_m)
-        if unit.lookahead is not None:
-            # a strip's first unit: scored against the statistics of the strip's first
-            # node.first_unit_length_m (its core's and the pings after it, as the trackers would
-            # have them there), not of its own core alone; the trackers go on from its core
-            background, median = column_mean(unit.lookahead), column_median(unit.lookahead)
+        background, median = unit_statistics(unit, *self._bg[key])
         model = self._current_model()
         taus = {d: float(model.tau.get(d, getattr(self.settings.detectors.threshold, d))) for d in self.enabled}
         det_settings = self.settings.detectors

@@ -192,7 +192,10 @@ def test_whole_image_scoring_gives_the_crops_responses(seabed_image):
     for k in crops.target_traits:
         np.testing.assert_array_equal(crops.target_traits[k], whole.target_traits[k])
     for d in s.detectors.enabled:
-        np.testing.assert_allclose(whole.target[d], crops.target[d], rtol=1e-9, atol=1e-12)
+        # rounding: the whole image's summed-area tables hold larger sums than a crop's, and
+        # lacunarity's variance E[x^2] - E[x]^2 cancels them (a +10 dB target of the varied
+        # population: 2.5e-9 relative)
+        np.testing.assert_allclose(whole.target[d], crops.target[d], rtol=1e-8, atol=1e-12)
         assert np.array_equal(auto.target[d], whole.target[d], equal_nan=True) or \
             np.array_equal(auto.target[d], crops.target[d], equal_nan=True)
     with pytest.raises(ValueError, match="scoring"):

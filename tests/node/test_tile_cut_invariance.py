@@ -188,6 +188,45 @@ def test_a_strip_shorter_than_the_first_unit_is_scored_whole():
     np.testing.assert_array_equal(units[0].lookahead, whole.pixels)
 
 
+def test_a_strip_that_starts_again_mid_leg_keeps_the_legs_background():
+    """Ping spacing changing by more than DX_TOLERANCE between tiles (a vehicle's speed, as in
+    river-000_1236) starts a new strip; its first unit is scored against the leg's tracked
+    b(j) and m(j), not against its own first metres. Only the first unit of a leg, or one after
+    a change of range axis reset the trackers, stands on its lookahead."""
+    from atr_node.node.pipeline import _trackers, unit_statistics
+
+    bright = np.full((600, 20), 100.0, np.float32)
+    dark = np.full((600, 20), 10.0, np.float32)  # a dark patch after the speed change
+    sa = StripAssembler(0, geometry=with_first)
+    units = sa.push(ground_tile(0, 0.0, 600).replace(pixels=bright))
+    units += sa.push(ground_tile(1, 30.0, 600, dx_m=0.14).replace(pixels=dark)) + sa.flush()
+    assert sa.breaks == {BREAK_DX: 1}
+    first = [u for u in units if u.dx_m == 0.1]
+    second = [u for u in units if u.dx_m == 0.14]
+    assert units == first + second and first[0].lookahead is not None and second[0].lookahead is not None
+    bg, med = _trackers(115.0)
+    got = [unit_statistics(u, bg, med) for u in units]
+    # the leg's first unit: its strip's first 51.2 m
+    np.testing.assert_array_equal(got[0][0], column_mean(first[0].lookahead))
+    np.testing.assert_array_equal(got[0][1], column_median(first[0].lookahead))
+    # the first unit after the break: the tracker's per-ping mean, written out independently:
+    # each core ping so far weighs exp(-metres travelled since it / memory)
+    k = len(first)
+    step = np.concatenate([np.full(u.core_rows, u.dx_m) for u in units[:k + 1]])
+    since = np.cumsum(step[::-1])[::-1] - step
+    levels = np.concatenate([u.pixels[u.core][:, 0] for u in units[:k + 1]]).astype(np.float64)
+    want = float(np.sum(np.exp(-since / 115.0) * levels) / np.sum(np.exp(-since / 115.0)))
+    np.testing.assert_allclose(got[k][0], want, rtol=1e-9)
+    assert 10.0 < want < 100.0 and column_mean(second[0].lookahead)[0] == 10.0
+    keep = math.exp(-second[0].core_rows * 0.14 / 115.0)  # the median: per unit, by its pings
+    np.testing.assert_allclose(got[k][1], keep * got[k - 1][1] + (1.0 - keep) * 10.0, rtol=1e-12)
+    # a change of range axis resets the trackers: the lookahead again
+    wide = StripAssembler(0, geometry=with_first)
+    (u_wide, *_) = wide.push(ground_tile(2, 90.0, 600, cols=25).replace(pixels=np.full((600, 25), 7.0, np.float32)))
+    b_wide, _ = unit_statistics(u_wide, bg, med)
+    np.testing.assert_array_equal(b_wide, column_mean(u_wide.lookahead))
+
+
 # -- the node: random cuts, same contacts ----------------------------------------------------
 MISSION = """
 [simulation]
