@@ -26,6 +26,37 @@ BUILTIN_SHAPES: tuple[str, ...] = ("cylinder", "cone", "wedge", "sphere", "box")
 """Shapes :func:`builtin_mesh` makes; ``cone`` is a truncated cone."""
 
 
+_OUT_OF_RANGE = np.zeros(0, np.int64)
+_USED: dict[int, tuple[np.ndarray, int, np.ndarray | None]] = {}
+"""id(faces) -> (faces, vertex count, used vertex indices or None for all): the scaled, tilted
+and moved copies of a mesh share its faces array, so the calibration's tens of thousands of
+drawn targets check and bound them once per shape, not once per draw."""
+
+
+def _used_vertices(faces: np.ndarray, n_vertices: int) -> np.ndarray | None:
+    """The vertex indices the faces use (sorted), None when they use every vertex, or
+    :data:`_OUT_OF_RANGE` when a face refers to a vertex outside 0..n_vertices - 1."""
+    hit = _USED.get(id(faces))
+    if hit is not None and hit[0] is faces and hit[1] == n_vertices:
+        return hit[2]
+    if faces.size and (faces.min() < 0 or faces.max() >= n_vertices):
+        return _OUT_OF_RANGE
+    used = np.unique(faces) if faces.size else None
+    if used is not None and used.size == n_vertices:
+        used = None
+    if len(_USED) >= 256:
+        _USED.clear()
+    _USED[id(faces)] = (faces, n_vertices, used)
+    return used
+
+
+def _bounds(vertices_m: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min xyz, max xyz) over the vertices the faces use (all of them without faces)."""
+    used = _used_vertices(faces, len(vertices_m)) if faces.size else None
+    pts = vertices_m if used is None else vertices_m[used]
+    return pts.min(axis=0), pts.max(axis=0)
+
+
 @dataclass(frozen=True, eq=False)
 class Mesh:
     """A triangle mesh.
@@ -51,7 +82,7 @@ class Mesh:
             raise GeometryError(f"mesh {self.name!r}: vertices must be (n, 3), got {v.shape}")
         if f.ndim != 2 or f.shape[1] != 3:
             raise GeometryError(f"mesh {self.name!r}: faces must be (m, 3), got {f.shape}")
-        if f.size and (f.min() < 0 or f.max() >= len(v)):
+        if _used_vertices(f, len(v)) is _OUT_OF_RANGE:
             raise GeometryError(f"mesh {self.name!r}: a face refers to a vertex outside 0..{len(v) - 1}")
         if not np.all(np.isfinite(v)):
             raise GeometryError(f"mesh {self.name!r}: non-finite vertex coordinate")
@@ -66,8 +97,7 @@ class Mesh:
     @property
     def bounds_m(self) -> tuple[np.ndarray, np.ndarray]:
         """(min xyz, max xyz) over the vertices used by faces."""
-        used = self.vertices_m[np.unique(self.faces)] if self.faces.size else self.vertices_m
-        return used.min(axis=0), used.max(axis=0)
+        return _bounds(self.vertices_m, self.faces)
 
     def flipped(self) -> "Mesh":
         """The same mesh with every facet's winding (normal) reversed."""
@@ -98,7 +128,7 @@ class Mesh:
         roll = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
         pitch = np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
         v = self.vertices_m @ (pitch @ roll).T
-        lo, hi = Mesh(v, self.faces, self.name).bounds_m
+        lo, hi = _bounds(v, self.faces)
         return Mesh(v - [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]], self.faces, self.name)
 
     @property

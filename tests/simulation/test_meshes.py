@@ -101,3 +101,21 @@ def test_bad_mesh_files_say_where(tmp_path):
         load_mesh(tmp_path / "bad.stl")
     with pytest.raises(GeometryError, match="unknown target shape"):
         builtin_mesh("torpedo")
+
+
+def test_copies_share_the_checked_faces_and_bounds_skip_unused_vertices():
+    """Scaled and tilted copies share their faces array, whose check and used-vertex set are
+    worked out once (``meshes._used_vertices``); the checks still hold per vertex count, and
+    bounds ignore vertices no face uses, as ``np.unique`` over the faces does."""
+    m = builtin_mesh("cone")
+    for copy in (m.scaled(1.3, 0.8, 1.1), m.tilted(roll_deg=12.0, pitch_deg=-7.0)):
+        assert copy.faces is m.faces
+        used = copy.vertices_m[np.unique(copy.faces)]
+        np.testing.assert_array_equal(copy.bounds_m[0], used.min(axis=0))
+        np.testing.assert_array_equal(copy.bounds_m[1], used.max(axis=0))
+    # a stray vertex far away that no face uses does not count
+    stray = Mesh(np.vstack([m.vertices_m, [[50.0, 50.0, 50.0]]]), m.faces, "stray")
+    np.testing.assert_array_equal(stray.bounds_m[1], m.bounds_m[1])
+    # the same faces with too few vertices are still refused, after they were accepted above
+    with pytest.raises(GeometryError, match="outside"):
+        Mesh(m.vertices_m[:3], m.faces, "short")
