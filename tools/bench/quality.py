@@ -16,6 +16,11 @@ contacts the node publishes, Bel >= report_bel); the share of contacts at Bel >=
 reliability table (Bel bin -> share of contacts that are targets); one-leg objects above
 report_bel; targets seen on >= 2 looks above report_bel; contacts without a detection.
 
+Then the shared real side-scan recordings (``--recordings``; they have no ground truth): per
+method the contacts it publishes, the objects read by eye it finds (the marks of
+``tools/figures/real_recordings.py``) and the contacts on the Iver2 wreck; for DS the share at
+Bel >= 0.999 and the contacts without a detection.
+
     python tools/bench/quality.py                      # 3 seabeds x 3 seeds, ~10 min
     python tools/bench/quality.py --quick              # 1 small scene (smoke)
     python tools/bench/quality.py --json out.json --out /tmp/quality
@@ -161,6 +166,85 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
     return out
 
 
+def _real_tool():
+    """tools/figures/real_recordings.py: the objects read by eye on the shared recordings and
+    how a contact is matched to them (one definition for the figures and this benchmark)."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "figures" / "real_recordings.py"
+    spec = importlib.util.spec_from_file_location("real_recordings", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def score_recording(path: Path, settings, *, online: str) -> dict:
+    """Every method on one real recording without ground truth: the contacts each publishes,
+    how many of the objects read by eye it finds (within 3 m on the waterfall, or in the
+    wreck's box), and for DS the share at Bel >= 0.999 and the contacts without a detection.
+    AND-3 here is the AND of every detector but the one with the most detections (no truth to
+    rank them on)."""
+    from atr_node.commands.replay import build_model
+    from atr_node.evaluation.methods import _gate, _records, fuse, node_like_contacts, run_pipeline
+    from atr_node.evaluation.waterfall import locate_contacts
+    from atr_node.fusion.baselines import and_contacts, or_contacts
+    from atr_node.node.service import open_recording
+    from atr_node.records.tile import Tile
+
+    rr = _real_tool()
+    crs, alt = settings.recording.crs, settings.recording.altitude
+    t0 = time.monotonic()
+    model, calibrator = build_model(settings, None, online, deterministic=True)
+    run = run_pipeline(settings, open_recording(path, crs=crs, altitude=alt), model=model, online=calibrator)
+    tiles = [Tile.from_map(r.msg) for r in open_recording(path, crs=crs, altitude=alt) if r.link == "sonar"]
+    pings, frame, dx = rr.recording_pings(tiles, settings)
+    en = tuple(settings.detectors.enabled)
+    gate = _gate(settings)
+    recs = {d: _records(run, d, None) for d in en}
+    noisiest = max(en, key=lambda d: len(recs[d]))
+    and3 = tuple(d for d in en if d != noisiest) if len(en) > 3 else en
+    report = settings.fusion.report_bel
+    n_marks = len(rr.MARKS.get(path.stem, []))
+
+    def figures(east_north: np.ndarray) -> dict:
+        lat, lon = run.frame.to_latlon(east_north[:, 0], east_north[:, 1]) if len(east_north) else ((), ())
+        cs = [{"id": i, "lat_deg": float(a), "lon_deg": float(b)} for i, (a, b) in enumerate(zip(np.ravel(lat), np.ravel(lon)))]
+        places = locate_contacts(pings, cs, frame)
+        found, wreck = rr.match_marks(path.stem, places, dx)
+        return {"contacts": len(cs), "placed": len(places), "marks": n_marks,
+                "marks_found": sum(1 for _, ids in found if ids), "found": {label: bool(ids) for label, ids in found},
+                "wreck_contacts": None if wreck is None else len(wreck)}
+
+    out: dict = {"recording": path.name, "methods": {}}
+    for name, kw in (("DS look (default)", {"evidence": "look"}),
+                     ("DS paper (prior 0.1)", {"evidence": "paper", "prior_target": 0.1})):
+        _, grid = fuse(run, en, **kw)
+        live = node_like_contacts(run, grid)
+        at = [c for c in live if c.bel >= report]
+        fig = figures(_en(at))
+        fig["share_bel_999"] = round(float(np.mean([c.bel >= 0.999 for c in at])) if at else 0.0, 3)
+        fig["no_detection"] = int(sum(1 for c in live if c.detections == 0))
+        out["methods"][name] = fig
+    all_recs = [r for d in en for r in recs[d]]
+    for name, cs in ((f"AND-3 ({'+'.join(and3)})", and_contacts(all_recs, gate_m=gate, detectors=and3)),
+                     ("OR", or_contacts(all_recs, gate_m=gate))):
+        out["methods"][name] = figures(np.array([(c.east_m, c.north_m) for c in cs]).reshape(-1, 2))
+    out["methods"]["vote 2 of 4"] = figures(_vote(all_recs, gate, 2))
+    out["seconds"] = round(time.monotonic() - t0, 1)
+    return out
+
+
+def recordings_markdown(results: list[dict]) -> str:
+    lines = ["| recording | method | contacts | objects read by eye found | wreck: contacts on it | Bel>=0.999 | no det |",
+             "|---|---|---:|---:|---:|---:|---:|"]
+    for r in results:
+        for name, f in r["methods"].items():
+            wreck = "-" if f["wreck_contacts"] is None else str(f["wreck_contacts"])
+            lines.append(f"| {r['recording']} | {name} | {f['contacts']} | {f['marks_found']} of {f['marks']} | {wreck} "
+                         f"| {f.get('share_bel_999', '-')} | {f.get('no_detection', '-')} |")
+    return "\n".join(lines)
+
+
 def checks(scene: dict, settings) -> dict:
     """The issue's done-means on one scene (True / False)."""
     m = scene["methods"]
@@ -240,6 +324,9 @@ def main_heldout(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default="/tmp/atr-quality", help="folder for the scenes and the report")
     ap.add_argument("--json", default=None, help="write the figures as JSON here")
     ap.add_argument("--quick", action="store_true", help="one small sand scene (a smoke run)")
+    ap.add_argument("--recordings", default=None, metavar="FILE[,FILE]",
+                    help="real recordings to score too (default: the shared side-scan XTF files when present, "
+                         "not with --quick; 'none' = no recording)")
     args = ap.parse_args(argv)
     from atr_node.config import load_settings
     from atr_node.errors import AtrError
@@ -276,13 +363,29 @@ def main_heldout(argv: list[str] | None = None) -> int:
             harness.record(f"scene {d.name}: replay and scoring", [float(results[-1]["seconds"])], clock="wall")
             ds = results[-1]["methods"].get("DS look (default)", {})
             harness.value(f"{d.name} DS look pd_max", ds.get("pd_max"))
-    text = markdown(results)
+    if args.recordings is None:
+        shared = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "xtf"
+        paths = [] if args.quick else [p for p in (shared / "scotsman-iver2.xtf", shared / "river-000_1236.xtf")
+                                       if p.is_file()]
+    else:
+        paths = [Path(p) for p in args.recordings.split(",") if p and p != "none"]
+    recordings = []
+    for p in paths:
+        print(f"{p.name}: scoring ...", file=sys.stderr, flush=True)
+        try:
+            recordings.append(score_recording(p, settings, online=args.online_calibration))
+        except (AtrError, OSError) as exc:
+            print(f"bench_quality: {p}: {exc}", file=sys.stderr)
+            return 1
+        harness.record(f"recording {p.name}: replay and scoring", [float(recordings[-1]["seconds"])], clock="wall")
+    text = markdown(results) + ("\n\n" + recordings_markdown(recordings) if recordings else "")
     print(text)
     out.mkdir(parents=True, exist_ok=True)
     (out / "quality.md").write_text(text + "\n")
     if args.json:
         Path(args.json).write_text(json.dumps({"command": "python tools/bench/quality.py " + " ".join(argv or sys.argv[1:]),
-                                               "scenes": results}, indent=1, default=float) + "\n")
+                                               "scenes": results, "recordings": recordings},
+                                              indent=1, default=float) + "\n")
     return 0
 
 

@@ -76,6 +76,33 @@ def _band_merger(settings):
                      first_return_band_max_m=s.first_return_band_max_m)
 
 
+def recording_pings(tiles: list[Tile], settings) -> tuple[list[SidePings], MissionFrame, float]:
+    """The pings of both sides (with the first-return band the node gives each tile), a metric
+    frame near the recording, and the median ping spacing: what contacts are placed with."""
+    merger = _band_merger(settings)
+    pings = [SidePings.from_tiles(tiles, s, band_m=lambda t: merger._band_m(t, t.nav.altitude_m))
+             for s in ("port", "stbd")]
+    nav = next(t for t in tiles if t.nav is not None)
+    frame = MissionFrame("utm", float(nav.nav.lat_deg[0]), float(nav.nav.lon_deg[0]))
+    return pings, frame, float(np.median([t.dx_m for t in tiles]))
+
+
+def match_marks(stem: str, places, dx: float) -> tuple[list[tuple[str, list[int]]], list[int] | None]:
+    """Per object read by eye (``MARKS``), the ids of the placed contacts within ``MATCH_M``
+    (along-track pings times ``dx`` and slant range); the ids inside the wreck's box
+    (``WRECKS``), None for a recording without one."""
+    found = []
+    for side, ping, r, label in MARKS.get(stem, []):
+        near = [p for p in places if p.side == side
+                and math.hypot((p.ping - ping) * dx, p.slant_range_m - r) <= MATCH_M]
+        found.append((label, [p.id for p in near]))
+    wreck = None
+    if stem in WRECKS:
+        side, a, b, rmax = WRECKS[stem]
+        wreck = [p.id for p in places if p.side == side and a <= p.ping <= b and p.slant_range_m <= rmax]
+    return found, wreck
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     extra: list[str] = []
@@ -116,23 +143,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{path}: no ping has a position: nothing to place", file=sys.stderr)
             failed += 1
             continue
-        merger = _band_merger(settings)
-        pings = [SidePings.from_tiles(tiles, s, band_m=lambda t: merger._band_m(t, t.nav.altitude_m))
-                 for s in ("port", "stbd")]
-        nav = next(t for t in tiles if t.nav is not None)
-        frame = MissionFrame("utm", float(nav.nav.lat_deg[0]), float(nav.nav.lon_deg[0]))
+        pings, frame, dx = recording_pings(tiles, settings)
         places = locate_contacts(pings, live, frame, band_m=band_m)
-        dx = float(np.median([t.dx_m for t in tiles]))
         marks = MARKS.get(path.stem, [])
-        found = []
-        for side, ping, r, label in marks:
-            near = [p for p in places if p.side == side
-                    and math.hypot((p.ping - ping) * dx, p.slant_range_m - r) <= MATCH_M]
-            found.append((label, [p.id for p in near]))
-        wreck = None
-        if path.stem in WRECKS:
-            side, a, b, rmax = WRECKS[path.stem]
-            wreck = [p.id for p in places if p.side == side and a <= p.ping <= b and p.slant_range_m <= rmax]
+        found, wreck = match_marks(path.stem, places, dx)
         alt = np.concatenate([p.altitude_m for p in pings])
         row = {"file": path.name, "tiles": summary["tiles_in"], "tile_pings": [t.rows for t in tiles if t.side == "port"],
                "contacts": len(live), "placed": len(places),
