@@ -44,10 +44,9 @@ SCORE_DEFINITION = "z = sum over detectors of -ln S_N,d(gamma_d) (background tai
 LR_SCORE_DEFINITION = ("z = sum over detectors of l_d(gamma_d) + 0.01 u_d(gamma_d), l_d = ln f_T,d / f_N,d "
                        "(binned, Jeffreys, isotonic non-decreasing, clipped to +-ln 1000), u_d = -ln S_N,d "
                        "(ties only); 0 where not covered")
-LOOK_SCORES = ("lr", "fisher")
-"""``calibration.look_score``: per-detector likelihood ratios (default) or Fisher's background tails."""
 LR_BINS = 24
-"""Bins of a detector's likelihood-ratio table: quantiles of its pooled target and background responses."""
+"""Bins of a detector's likelihood-ratio table: half at quantiles of its target responses, half at
+quantiles of its background responses (:func:`lr_edges`)."""
 LR_CAP = math.log(1000.0)
 """Largest |l_d|: no single detector's response moves the look's odds by more than 1000."""
 LR_TIE = 0.01
