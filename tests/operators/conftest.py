@@ -113,3 +113,62 @@ def live_node(mission, tmp_path):
         n.service.stop()
         if n.thread is not None:
             n.thread.join(30)
+
+
+# -- waiting for events, not for silence ----------------------------------------------------
+# A client that stops after S seconds without a message (``--until-silent``, ``follow(until_
+# silent_s=...)``) stops early when a loaded machine delays the node by S seconds, and the test
+# then misses messages. The tests below stop their clients when what they wait for has come.
+WAIT_S = 60.0
+"""A guard against a hang only: every wait ends at its event, long before this on any machine."""
+
+
+def follow_until(follower, done: Callable[[], bool], timeout_s: float = WAIT_S) -> bool:
+    """Receive on ``follower`` until ``done()`` holds; False if it never did."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        if time.monotonic() >= deadline:
+            return False
+        follower.poll(0.1)
+    return True
+
+
+class StreamLines:
+    """Every line of a subprocess's text stream, read by a thread (nothing lost, no hang)."""
+
+    def __init__(self, stream) -> None:
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream) -> None:
+        for line in stream:
+            self.lines.append(line)
+
+    @property
+    def text(self) -> str:
+        return "".join(self.lines)
+
+    def wait_for(self, done: Callable[[str], bool], timeout_s: float = WAIT_S) -> None:
+        """Until ``done(text so far)`` holds; fails with the stream's tail if it never does."""
+        import time
+
+        deadline = time.monotonic() + timeout_s
+        while not done(self.text):
+            assert time.monotonic() < deadline, f"never came; the stream ended with: {self.text[-2000:]}"
+            time.sleep(0.05)
+
+    def close(self, timeout_s: float = WAIT_S) -> str:
+        """The whole text, once the stream has ended."""
+        self._thread.join(timeout_s)
+        return self.text
+
+
+def stop_client(proc, timeout_s: float = WAIT_S) -> int:
+    """SIGTERM (the clients' clean stop: last frame, files written, end-of-run line), then its exit."""
+    import signal
+
+    proc.send_signal(signal.SIGTERM)
+    return proc.wait(timeout=timeout_s)

@@ -23,6 +23,8 @@ from atr_node.errors import AtrError
 from atr_node.node import wire
 from atr_node.operators.exwpt import ExwptOutput, format_exwpt
 
+from .conftest import WAIT_S, StreamLines, stop_client
+
 # Independent decoder: the layout of Chesapeake Times vol. 14 (July 2023), IEC 61162-1 framing.
 SENTENCE = re.compile(rb"^\$(EXWPT),([^*]*)\*([0-9A-F]{2})\r\n$")
 
@@ -180,24 +182,27 @@ def test_exwpt_command_from_a_live_node_into_a_pty(live_node):
     reader = threading.Thread(target=_pty_reader, args=(master, lines, stop), daemon=True)
     reader.start()
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "exwpt", "--from", node.endpoint, "--port",
-                             os.ttyname(slave), "--min-move-m", "0", "--min-bel-change", "0", "--until-silent", "5"],
+                             os.ttyname(slave), "--min-move-m", "0", "--min-bel-change", "0"],
                             stderr=subprocess.PIPE, text=True)
+    stderr = StreamLines(proc.stderr)
     try:
-        first = proc.stderr.readline()
-        assert "node up" in first, first
+        stderr.wait_for(lambda t: "node up" in t)
         node.release()
         node.join()
-        _, err = proc.communicate(timeout=60)
-        assert proc.returncode == 0, err
-        deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
+        deadline = time.monotonic() + WAIT_S  # until every sentence is on the pty (a hang guard)
         expected = [m for m in node.emitted if m["state"] != "withdrawn"]
         while len(lines) < len(expected) and time.monotonic() < deadline:
             time.sleep(0.05)
+        returncode = stop_client(proc)
     finally:
         stop.set()
         reader.join(2)
         os.close(master)
         os.close(slave)
+        if proc.poll() is None:
+            proc.kill()
+    err = stderr.close()
+    assert returncode == 0, err
     assert expected, "the small mission should give contacts"
     got = [parse_exwpt(x) for x in lines]
     # with no filter, one sentence per published new/update message, in publishing order

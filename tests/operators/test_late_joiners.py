@@ -26,7 +26,7 @@ from atr_node.node.publisher import Subscriber
 from atr_node.node.snapshot_endpoint import derived_snapshot_endpoint
 from atr_node.operators.stream import NodeFollower
 
-from .conftest import free_port_pair
+from .conftest import WAIT_S, StreamLines, follow_until, free_port_pair, stop_client
 
 
 @pytest.fixture(scope="module")
@@ -74,9 +74,13 @@ def test_follower_started_mid_run_gets_every_live_contact_once(live_node, pause_
         assert fol.stats.snapshot == "ok"
         node.resume_feed.set()
         node.join()
-        fol.follow(until_silent_s=1.5)
-        while (got := early.recv(0.2)) is not None:
-            wire_log.append(got[1])
+        last = len(node.emitted)  # seq of the node's last message
+        assert follow_until(fol, lambda: bool(applied) and applied[-1]["seq"] == last)
+        deadline = time.monotonic() + WAIT_S  # a guard against a hang: the wait ends at the last message
+        while not any(m.get("seq") == last for m in wire_log) and time.monotonic() < deadline:
+            got = early.recv(0.1)
+            if got is not None:
+                wire_log.append(got[1])
     finally:
         fol.close()
         early.close()
@@ -101,39 +105,27 @@ def test_follower_started_mid_run_gets_every_live_contact_once(live_node, pause_
     assert final_live == sorted(_live(emitted).values(), key=lambda c: c["id"])
 
 
-def _read_until(stream, needle, timeout_s=60.0):
-    """Lines of ``stream`` up to the first holding ``needle`` (a reader thread: no hang)."""
-    lines: list[str] = []
-    found = threading.Event()
-
-    def read():
-        for line in stream:
-            lines.append(line)
-            if needle in line:
-                found.set()
-                return
-
-    threading.Thread(target=read, daemon=True).start()
-    assert found.wait(timeout_s), f"{needle!r} never came: {''.join(lines)[-2000:]}"
-    return lines
-
-
 def test_monitor_started_mid_run_shows_every_live_contact(live_node, pause_at):
     node = live_node(pause_after=pause_at)
     before = _paused(node)
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "monitor", "--from", node.endpoint, "--plain",
-                             "--refresh", "0.3", "--until-silent", "5", "--rows", "50"],
+                             "--refresh", "0.3", "--rows", "50"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "COLUMNS": "160"})  # the whole 'received' line
+    stdout, stderr = StreamLines(proc.stdout), StreamLines(proc.stderr)
     try:
-        _read_until(proc.stdout, "live contacts at seq")  # the monitor has the snapshot
+        stdout.wait_for(lambda t: "live contacts at seq" in t)  # the monitor has the snapshot
         node.resume_feed.set()
         node.join()
-        out, err = proc.communicate(timeout=60)
+        n_after = len(node.emitted) - len(before)
+        # a frame that counts every later message: the monitor has them all, and may stop
+        stdout.wait_for(lambda t: f" {n_after} contact messages" in t)
+        returncode = stop_client(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 0, err
+    out, err = stdout.close(), stderr.close()
+    assert returncode == 0, err
     n_before = len(_live(before))
     assert f"snapshot: {n_before} live contacts at seq {len(before)}" in err, err
     assert f"{len(node.emitted) - len(before)} contact messages" in err
@@ -153,23 +145,37 @@ def test_export_from_started_mid_run_writes_every_live_contact(live_node, pause_
     before = _paused(node)
     out = tmp_path / "live.geojson"
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "export", "--from", node.endpoint,
-                             "--until-silent", "5", "-o", str(out)], stderr=subprocess.PIPE, text=True)
+                             "--until-silent", "0", "--refresh", "0.2", "-o", str(out)], stderr=subprocess.PIPE,
+                            text=True)
+    stderr = StreamLines(proc.stderr)
+
+    def written() -> dict:
+        try:
+            return {f["id"]: {k: v for k, v in f["properties"].items() if k != "time_utc"}
+                    for f in json.loads(out.read_text())["features"]}
+        except (OSError, ValueError):
+            return {}
+
     try:
-        _read_until(proc.stderr, "node up")  # first heartbeat: the snapshot is asked right after it
-        deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
+        stderr.wait_for(lambda t: "node up" in t)  # first heartbeat: the snapshot is asked right after it
+        deadline = time.monotonic() + WAIT_S  # a guard against a hang: the wait ends at the event
         while node.service.snapshot_server.served == 0 and time.monotonic() < deadline:
             time.sleep(0.05)
         node.resume_feed.set()
         node.join()
-        _, err = proc.communicate(timeout=60)
+        want = {c["id"]: c for c in node.service.pipeline.live_contacts()}
+        deadline = time.monotonic() + WAIT_S  # until the refreshed file holds the node's final list
+        while written() != want and time.monotonic() < deadline:
+            time.sleep(0.1)
+        returncode = stop_client(proc)  # and the file is written once more at the stop
     finally:
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 0, err
+    err = stderr.close()
+    assert returncode == 0, err
     assert f"snapshot: {len(_live(before))} live contacts at seq {len(before)}" in err
-    got = {f["id"]: {k: v for k, v in f["properties"].items() if k != "time_utc"}
-           for f in json.loads(out.read_text())["features"]}
-    assert got and got == {c["id"]: c for c in node.service.pipeline.live_contacts()}
+    got = written()
+    assert got and got == want
 
 
 def test_exwpt_started_mid_run_sends_the_live_contacts_first(live_node, pause_at):
@@ -186,21 +192,22 @@ def test_exwpt_started_mid_run_sends_the_live_contacts_first(live_node, pause_at
     reader = threading.Thread(target=_pty_reader, args=(master, lines, stop), daemon=True)
     reader.start()
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "exwpt", "--from", node.endpoint, "--port",
-                             os.ttyname(slave), "--min-move-m", "0", "--min-bel-change", "0", "--until-silent", "5"],
+                             os.ttyname(slave), "--min-move-m", "0", "--min-bel-change", "0"],
                             stderr=subprocess.PIPE, text=True)
+    stderr = StreamLines(proc.stderr)
     try:
-        _read_until(proc.stderr, "node up")
-        deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
+        stderr.wait_for(lambda t: "node up" in t)
+        deadline = time.monotonic() + WAIT_S  # a guard against a hang: the wait ends at the event
         while node.service.snapshot_server.served == 0 and time.monotonic() < deadline:
             time.sleep(0.05)
         node.resume_feed.set()
         node.join()
-        _, err = proc.communicate(timeout=60)
         after = [m for m in node.emitted[len(before):] if m["state"] != "withdrawn"]
         want = sorted(_live(before).values(), key=lambda c: c["id"]) + after
-        deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
+        deadline = time.monotonic() + WAIT_S  # until every sentence is on the pty
         while len(lines) < len(want) and time.monotonic() < deadline:
             time.sleep(0.05)
+        returncode = stop_client(proc)
     finally:
         stop.set()
         reader.join(2)
@@ -208,7 +215,8 @@ def test_exwpt_started_mid_run_sends_the_live_contacts_first(live_node, pause_at
         os.close(slave)
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 0, err
+    err = stderr.close()
+    assert returncode == 0, err
     got = [parse_exwpt(x) for x in lines]
     # the snapshot's live contacts (by id), then one sentence per later new/update message
     assert [(d["id"], d["state"]) for d in got] == [(m["id"], m["state"]) for m in want]
@@ -228,7 +236,7 @@ def test_a_v1_node_without_the_endpoint_is_followed_after_one_warning(live_node,
             assert fol.wait_heartbeat(60)
             node.resume_feed.set()
             node.join()
-            fol.follow(until_silent_s=1.5)
+            follow_until(fol, lambda: fol.stats.contacts >= len(node.emitted) - len(before))
     finally:
         fol.close()
     warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
@@ -247,18 +255,23 @@ def test_replay_command_serves_the_snapshot_on_the_port_after_publish(mission, t
                              "--publish", f"tcp://127.0.0.1:{port}", "--contacts-out", str(out)],
                             stderr=subprocess.PIPE, text=True)
     fol = NodeFollower(f"tcp://127.0.0.1:{port}", snapshot=f"tcp://127.0.0.1:{port + 1}", snapshot_timeout_s=10)
+    stderr = StreamLines(proc.stderr)
     try:
-        fol.follow(until_silent_s=3.0 if fol.wait_heartbeat(60) else 0.0)
-        _, err = proc.communicate(timeout=120)
+        assert fol.wait_heartbeat(WAIT_S)
+        follow_until(fol, lambda: proc.poll() is not None, timeout_s=120)  # the replay runs to its end
+        returncode = proc.wait(timeout=WAIT_S)
+        final = [json.loads(x) for x in out.read_text().splitlines()] if returncode == 0 else []
+        live = {c["id"]: c for c in final if c["state"] != "withdrawn"}
+        # until the follower's book holds what the replay wrote (published before it exited)
+        follow_until(fol, lambda: {c["id"]: c for c in fol.book.contacts()} == live)
     finally:
         fol.close()
         if proc.poll() is None:
             proc.kill()
-    assert proc.returncode == 0, err
-    final = [json.loads(x) for x in out.read_text().splitlines()]
+    err = stderr.close()
+    assert returncode == 0, err
     assert fol.stats.snapshot == "ok" and fol.stats.gaps == 0
     assert all(wire.validate_contact(c, require_seq=True) == [] for c in final)
-    live = {c["id"]: c for c in final if c["state"] != "withdrawn"}
     assert live and {c["id"]: c for c in fol.book.contacts()} == live
 
 
@@ -284,7 +297,7 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
     def node():  # as NodeService._emit: the view, then the PUB socket
         for m in messages:
             if m["seq"] == 300:
-                joined.wait(10)  # some history before the follower exists
+                joined.wait(WAIT_S)  # some history before the follower exists (a hang guard only)
             view.published(m)
             pub.contact(m)
             time.sleep(0.0005)
@@ -297,7 +310,7 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
             time.sleep(0.01)
         fol = NodeFollower(pub.endpoint, snapshot=srv.endpoint, on_contact=applied.append)
         joined.set()
-        fol.follow(until_silent_s=1.5)
+        follow_until(fol, lambda: bool(applied) and applied[-1]["seq"] == 1500)
         t.join()
     finally:
         fol.close()

@@ -21,6 +21,8 @@ from atr_node.operators.beliefmap import draw_belief_map, grid_raster, load_stat
 from atr_node.operators.monitor import CLEAR_EOS, HOME, Monitor, render_screen
 from atr_node.operators.stream import NodeFollower
 
+from .conftest import StreamLines, stop_client
+
 
 def contact(id, *, state="update", bel=0.9, t=1.7e9):
     return wire.contact_message(id=id, state=state, t=t, lat_deg=-12.5, lon_deg=130.25, east_m=100.0 * id,
@@ -136,21 +138,31 @@ def test_monitor_command_against_a_live_node_with_png(live_node, tmp_path):
     node = live_node(state_dir=state)
     png = tmp_path / "belief.png"
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "monitor", "--from", node.endpoint, "--plain",
-                             "--refresh", "0.3", "--until-silent", "5", "--png", str(png), "--png-every", "1",
+                             "--refresh", "0.3", "--png", str(png), "--png-every", "1",
                              "--state-dir", str(state), "--rows", "50"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
-    first = ""
-    while "heartbeat" not in first and time.monotonic() < deadline:  # the first frame showing the node up
-        first = proc.stdout.readline()
-        if "node" in first and "waiting" in first:
-            first = ""
-    node.release()
-    node.join()
-    out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
+    stdout, stderr = StreamLines(proc.stdout), StreamLines(proc.stderr)
+    try:
+        # the first frame with a heartbeat: the node is up and the monitor subscribed
+        stdout.wait_for(lambda t: any("heartbeat" in x and not ("node" in x and "waiting" in x)
+                                      for x in t.splitlines()))
+        node.release()
+        node.join()
+        n_tiles = node.service.pipeline.stats.tiles_in
+
+        def has_everything(text: str) -> bool:  # a frame with the last heartbeat and every message
+            frame = text.strip().split("\n\n")[-1]
+            return (f"tiles     in {n_tiles}  done {n_tiles}" in frame
+                    and f" {len(node.emitted)} contact messages" in frame)
+
+        stdout.wait_for(has_everything)
+        returncode = stop_client(proc)  # a last frame and PNG, then the end-of-run line
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    out, err = stdout.close(), stderr.close()
+    assert returncode == 0, err
     last = out.strip().split("\n\n")[-1].split("\n")
-    n_tiles = node.service.pipeline.stats.tiles_in
     assert f"tiles     in {n_tiles}  done {n_tiles}" in last[2]
     final = {}
     for m in node.emitted:
