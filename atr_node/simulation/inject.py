@@ -224,6 +224,8 @@ class _Ready:
     local: Mesh
     window: TraceWindow
     kernel: np.ndarray
+    fp: tuple[int, int, int, int]
+    """The blurred signature's footprint, known from the window."""
     speckle: tuple[np.ndarray, np.ndarray] | None = None
 
 
@@ -347,9 +349,10 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         if window is None:
             return None
         kernel = _kernel(round(p.range_m, 1), dx_m, sensor)
-        if early and refused(blurred_footprint(window.footprint, kernel, rows)):
+        fp = blurred_footprint(window.footprint, kernel, rows)
+        if early and refused(fp):
             return None
-        return _Ready(p, local, window, kernel)
+        return _Ready(p, local, window, kernel, fp)
 
     def usable(sig: Signature) -> bool:
         return not (sig.empty or (sig.echo.max() <= 0 and sig.p_shadow.max() <= 0))
@@ -383,15 +386,15 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         return trace_many([r.window for r in ready], range0_m=range0_m, dr_m=dr_m, dx_m=dx_m, altitude_m=H,
                           subrays=k, engine=engine)
 
-    def do(p: Placement, check: bool) -> bool:
-        """One placement, traced at once (the reference order: see :data:`BATCH`)."""
-        r = prepare(p, check)
+    def do(p: Placement) -> bool:
+        """One random placement, traced at once (the reference order: see :data:`BATCH`)."""
+        r = prepare(p, True)
         if r is None:
             return False
         sig = trace_all([r])[0]
         if not usable(sig):
             return False
-        fp = finish(r, sig, check)
+        fp = finish(r, sig, True)
         if fp is None:
             return False
         taken.append(fp)
@@ -405,10 +408,12 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         # rendered in order.
         ready = [prepare(p, False) for p in placements]
         live = [r for r in ready if r is not None]
-        sigs = iter(trace_all(live) if BATCH else [trace_all([r])[0] for r in live])
+        sigs = iter(trace_all(live))
         for p, r in zip(placements, ready):
             sig = next(sigs) if r is not None else None
-            if sig is None or not usable(sig) or finish(r, sig, False) is None:
+            if sig is not None and usable(sig):
+                finish(r, sig, False)
+            else:
                 log.info("target %s at row %.1f, range %.1f m is outside the tile: skipped", p.shape, p.row, p.range_m)
         return host, targets
     n = int(n_targets or 0)
@@ -424,7 +429,7 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
     def one_by_one() -> None:
         for _ in range(n):
             for _try in range(max_tries):
-                if do(draw(), check=True):
+                if do(draw()):
                     break
 
     if BATCH and PRECHECK:
@@ -437,7 +442,7 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
             for _try in range(max_tries):
                 r = prepare(draw(), True)
                 if r is not None:
-                    fp = blurred_footprint(r.window.footprint, r.kernel, rows)
+                    fp = r.fp
                     r.speckle = draw_speckle(rng, (fp[1] - fp[0], fp[3] - fp[2]))
                     taken.append(fp)
                     ready.append(r)

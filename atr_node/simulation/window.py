@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import cached_property
 from typing import Sequence
 
 import numpy as np
@@ -35,22 +34,21 @@ def _facet_normals(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return n[keep] / norm[keep, None], keep, (n * tri[:, 0]).sum(axis=1)
 
 
-_TOPOLOGY: dict[int, tuple[np.ndarray, bool, int]] = {}
+_CLOSED: dict[int, tuple[np.ndarray, bool]] = {}
 """Per faces array (meshes scaled, tilted and placed share theirs; the array is held, so its
-id cannot be reused): whether it closes a surface, and how many vertices it uses."""
+id cannot be reused): whether it closes a surface."""
 
 
-def _topology(faces: np.ndarray) -> tuple[bool, int]:
-    """(:func:`_closed` of ``faces``, the number of distinct vertices they use), worked out
-    once per faces array."""
-    hit = _TOPOLOGY.get(id(faces))
+def _closed_faces(faces: np.ndarray) -> bool:
+    """:func:`_closed` of ``faces``, worked out once per faces array."""
+    hit = _CLOSED.get(id(faces))
     if hit is not None and hit[0] is faces:
-        return hit[1], hit[2]
-    if len(_TOPOLOGY) > 256:
-        _TOPOLOGY.clear()
-    out = (_closed(faces), int(np.unique(faces).size))
-    _TOPOLOGY[id(faces)] = (faces, *out)
-    return out
+        return hit[1]
+    if len(_CLOSED) >= 256:
+        _CLOSED.clear()
+    closed = _closed(faces)
+    _CLOSED[id(faces)] = (faces, closed)
+    return closed
 
 
 def surfaces(windows: "Sequence[TraceWindow]") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -66,7 +64,7 @@ def surfaces(windows: "Sequence[TraceWindow]") -> tuple[np.ndarray, np.ndarray, 
     facing = np.zeros(len(windows), dtype=np.int64)
     for j, w in enumerate(windows):
         kept_j = keep[starts[j]:starts[j] + counts[j]]
-        closed = _topology(w.faces)[0] if kept_j.all() else _closed(w.faces[kept_j])
+        closed = _closed_faces(w.faces) if kept_j.all() else _closed(w.faces[kept_j])
         if vol6[j] != 0.0 and closed:
             facing[j] = 1 if vol6[j] > 0 else -1
     return tri_all[keep], normals, kept, facing
@@ -108,17 +106,6 @@ class TraceWindow:
         """(row0, row1, col0, col1), half-open: the traced :class:`Signature`'s footprint."""
         return self.i0, self.i1, self.c0, self.c1
 
-    @cached_property
-    def surface(self) -> tuple[np.ndarray, np.ndarray, int]:
-        """(non-degenerate triangles, their unit normals, facing) of this window alone: facing
-        +1 (-1) for a closed mesh with normals outward (inward), whose faces turned away from
-        the sensor can be left out; 0 for an open mesh, every face traced."""
-        tri, normals, _, facing = surfaces([self])
-        return tri, normals, int(facing[0])
-
-    @property
-    def facing(self) -> int:
-        return self.surface[2]
 
 
 def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
@@ -134,9 +121,7 @@ def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows:
     tri_all = mesh.triangles_m
     if len(tri_all) == 0:
         return None
-    # the vertices' bounding box is the triangles' when every vertex is a corner of some face
-    v = mesh.vertices_m if _topology(mesh.faces)[1] == len(mesh.vertices_m) else tri_all.reshape(-1, 3)
-    lo, hi = v.min(axis=0), v.max(axis=0)
+    lo, hi = mesh.bounds_m  # the triangles' bounding box: over the vertices the faces use
     zmax = min(hi[2], H)
     if zmax <= 0.0 or hi[1] <= 0.0:
         return None  # entirely buried, or on the other side of the track

@@ -8,7 +8,7 @@ import numpy as np
 
 from atr_node.simulation.meshes import Mesh
 from atr_node.errors import GeometryError
-from atr_node.simulation.window import TraceWindow
+from atr_node.simulation.window import TraceWindow, surfaces
 from atr_node.simulation.raytrace import _PARALLEL_EPS, Signature, _clip_above_seabed, _empty, trace_window
 
 
@@ -71,7 +71,7 @@ def dense_trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: 
     if w is None:
         return _empty()
     H = float(altitude_m)
-    tri, normals, _ = w.surface
+    tri, normals, _, _ = surfaces([w])
     lo = w.lo
     i0, i1, c0, c1, cs0, cs1 = w.i0, w.i1, w.c0, w.c1, w.cs0, w.cs1
     edge0 = range0_m - dr_m / 2
@@ -137,3 +137,16 @@ def dense_trace(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: 
     # Shadow: fraction of hidden sub-rays per pixel.
     p_shadow[:, cs0 - c0:cs1 - c0] = hid.reshape(nr, k, cs1 - cs0, k).mean(axis=(1, 3))
     return Signature(i0, c0, p_shadow.astype(np.float32), echo.astype(np.float32))
+
+
+def l1_error(sigs: list, refs: list) -> tuple[float, float]:
+    """Mean L1 error of the shadow and of the echo maps of ``sigs`` against ``refs``, relative to
+    the reference's totals (targets whose reference shadow is under one pixel are left out):
+    the error the signature benchmark and tests quote."""
+    es, ee = [], []
+    for s, r in zip(sigs, refs):
+        if r.empty or r.p_shadow.sum() < 1.0:
+            continue
+        es.append(np.abs(s.p_shadow - r.p_shadow).sum() / r.p_shadow.sum())
+        ee.append(np.abs(s.echo - r.echo).sum() / max(float(r.echo.sum()), 1e-9))
+    return float(np.mean(es)), float(np.mean(ee))

@@ -40,7 +40,7 @@ from pathlib import Path  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import harness  # noqa: E402  (tools/bench/harness.py: repeats, warm-up, statistics, JSON)
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests" / "simulation"))
-from dense_trace import dense_trace  # noqa: E402  (the one-target tracer the engine replaced)
+from dense_trace import dense_trace, l1_error  # noqa: E402  (the one-target tracer the engine replaced)
 
 H, DR, DX = 14.0, 0.1, 0.1
 SHAPES = ("cylinder", "cone", "wedge")
@@ -61,17 +61,6 @@ def _engine(placed: list, k: int, engine: str) -> list:
         ws = [trace_window(m, rows=ROWS, cols=COLS, **GEO) for m in placed[s:s + BATCH]]
         out += trace_many(ws, subrays=k, engine=engine, **GEO)
     return out
-
-
-def _l1(sigs: list, refs: list) -> tuple[float, float]:
-    """Mean L1 error of the shadow and echo maps against the reference, relative to its totals."""
-    es, ee = [], []
-    for s, r in zip(sigs, refs):
-        if r.empty or r.p_shadow.sum() < 1.0:
-            continue
-        es.append(np.abs(s.p_shadow - r.p_shadow).sum() / r.p_shadow.sum())
-        ee.append(np.abs(s.echo - r.echo).sum() / max(float(r.echo.sum()), 1e-9))
-    return float(np.mean(es)), float(np.mean(ee))
 
 
 def bench_engine(rng: np.random.Generator, n: int, n_err: int, reps: int) -> list[tuple[str, int, float, float, float]]:
@@ -97,7 +86,7 @@ def bench_engine(rng: np.random.Generator, n: int, n_err: int, reps: int) -> lis
         rate = count / best
         harness.record(f"signature engine {engine}, k = {k}, {count} signatures", [best], clock="process", work=count,
                        work_unit="signatures")
-        es, ee = _l1(sigs[:n_err], fine)
+        es, ee = l1_error(sigs[:n_err], fine)
         harness.value(f"signature engine {engine}, k = {k}: error against 16 x 16 sub-rays (shadow, echo)", [es, ee])
         rows.append((engine, k, rate, es, ee))
     return rows
