@@ -63,6 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     responses = Responses.concat(parts)
     prov = dict(parts[0].provenance)
     prov.update({"images": [n for p in parts for n in p.provenance["images"]], "n_images": len(parts),
+                 "iterations_done": responses.provenance.get("iterations_done"),
                  "seed": args.seed, "seabed": "+".join(seabeds),
                  "source": "tools/make_shipped_model.py: synthetic seabeds (atr_node.calibration.sources)"})
     model = estimate_model(responses, calibration=settings.calibration, thresholds=settings.detectors.threshold,

@@ -19,10 +19,11 @@ from .engine import Engine, Progress, TaskOutcome
 
 
 def image_responses(image: CalibrationImage, settings: Any, iterations: int, targets_per_image: int, seed: int,
-                    k: int) -> Responses:
-    """Responses of image ``k`` (one task)."""
+                    k: int, pooled: int) -> Responses:
+    """Responses of image ``k`` of ``pooled`` usable images (one task), as ``collect_parts``
+    collects it (the early stop at convergence reads ``pooled``)."""
     return collect_image(image, settings=settings, iterations=iterations, targets_per_image=targets_per_image,
-                         rng=np.random.default_rng([seed, k]))
+                         rng=np.random.default_rng([seed, k]), pooled=pooled)
 
 
 def run_calibration(images: Sequence[CalibrationImage], settings: Any, engine: Engine, *, iterations: int,
@@ -39,7 +40,8 @@ def run_calibration(images: Sequence[CalibrationImage], settings: Any, engine: E
     skipped = [im.name for im in images if not _room_for_targets(im, settings)]
     if not usable:
         raise AtrError(f"calibration: no image has room for a target and its context window ({len(images)} image(s))")
-    items = [(im.name, (im, settings, iterations, targets_per_image, seed, k)) for k, im in enumerate(usable)]
+    items = [(im.name, (im, settings, iterations, targets_per_image, seed, k, len(usable)))
+             for k, im in enumerate(usable)]
     outcomes = engine.map(image_responses, items, progress=progress)
     bad = [o for o in outcomes if not o.ok]
     if bad:

@@ -135,9 +135,9 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     """
     dets = tuple(responses.detectors)
     tails = {d: _looks.tail_table(responses.nontarget[d]) for d in dets}
-    kind = getattr(calibration, "look_score", "lr")
     lrs = ({d: _looks.lr_table(responses.target[d], responses.nontarget[d], tail=tails[d]) for d in dets}
-           if kind == "lr" else None)
+           if calibration.look_score == "lr" else None)
+    terms = tails if lrs is None else lrs
     sizes = {np.asarray(responses.nontarget[d]).size for d in dets}
     info: dict[str, Any] = {"score": _looks.LR_SCORE_DEFINITION if lrs is not None else _looks.SCORE_DEFINITION,
                             "fired": "at least one detector of the set above its threshold",
@@ -149,8 +149,7 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     tables = {}
     for n in range(1, len(dets) + 1):
         for subset in itertools.combinations(dets, n):
-            z_t, f_t, z_n, f_n = _looks.look_scores(responses.target, responses.nontarget, taus,
-                                                    tails if lrs is None else lrs, subset)
+            z_t, f_t, z_n, f_n = _looks.look_scores(responses.target, responses.nontarget, taus, terms, subset)
             fired_z = np.concatenate([z_t[f_t & np.isfinite(z_t)], z_n[f_n & np.isfinite(z_n)]])
             # the fired responses above a threshold below all of them, the others below it:
             # confidence_curve's "exceedances" are then exactly the fired ones

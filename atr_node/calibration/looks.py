@@ -41,9 +41,6 @@ from ..config import DETECTOR_NAMES
 from .stats import isotonic_increasing
 
 SCORE_DEFINITION = "z = sum over detectors of -ln S_N,d(gamma_d) (background tail; 0 where not covered)"
-LR_SCORE_DEFINITION = ("z = sum over detectors of l_d(gamma_d) + 0.01 u_d(gamma_d), l_d = ln f_T,d / f_N,d "
-                       "(binned, Jeffreys, isotonic non-decreasing, clipped to +-ln 1000), u_d = -ln S_N,d "
-                       "(ties only); 0 where not covered")
 LR_BINS = 24
 """Bins of a detector's likelihood-ratio table: half at quantiles of its target responses, half at
 quantiles of its background responses (:func:`lr_edges`)."""
@@ -52,6 +49,9 @@ LR_CAP = math.log(1000.0)
 LR_TIE = 0.01
 """Weight of the background tail ``u_d`` added to ``l_d``: it only breaks the ties of the
 likelihood ratio (its bins, isotonic pools and cap), so stronger responses still rank higher."""
+LR_SCORE_DEFINITION = (f"z = sum over detectors of l_d(gamma_d) + {LR_TIE:g} u_d(gamma_d), l_d = ln f_T,d / f_N,d "
+                       f"(binned, Jeffreys, isotonic non-decreasing, clipped to +-ln {math.exp(LR_CAP):.0f}), "
+                       "u_d = -ln S_N,d (ties only); 0 where not covered")
 TAIL_POINTS = 48
 """Knots of a detector's tail table u_d."""
 TAIL_EXTRA = math.log(10.0)
@@ -225,10 +225,10 @@ def _combine(us: list[np.ndarray]) -> np.ndarray:
 
 
 def look_scores(target: Mapping[str, np.ndarray], nontarget: Mapping[str, np.ndarray], taus: Mapping[str, float],
-                tails: Mapping[str, Any], detectors: Sequence[str]
+                terms: Mapping[str, Any], detectors: Sequence[str]
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(z_t, fired_t, z_n, fired_n) of a detector set: z NaN where no detector covered;
-    ``tails``: the per-detector terms (:attr:`LookModel.terms`)."""
+    ``terms``: the per-detector terms (:attr:`LookModel.terms`)."""
     out = []
     detectors = _canonical(detectors)
     for resp in (target, nontarget):
@@ -237,7 +237,7 @@ def look_scores(target: Mapping[str, np.ndarray], nontarget: Mapping[str, np.nda
         fired = np.zeros(arrs[0].shape, dtype=bool)
         us = []
         for d, a in zip(detectors, arrs):
-            us.append(tails[d](a))
+            us.append(terms[d](a))
             covered |= np.isfinite(a)
             fired |= np.isfinite(a) & (a > taus[d])
         z = _combine(us)
@@ -324,7 +324,8 @@ def looks_from_dict(raw: Any, where: str, detector_from) -> LookModel:
         members = [m for m in str(k).split("+") if m]
         missing = [m for m in members if m not in tails or (lrs is not None and m not in lrs)]
         if not members or missing:
-            raise err(f"tables.{k}", f"names detectors without a tail table: {missing or k!r}")
+            raise err(f"tables.{k}", f"names detectors without a tail{' or lr' if lrs is not None else ''} table: "
+                                     f"{missing or k!r}")
         tables[str(k)] = detector_from(t, where, f"looks.tables.{k}")
     info = raw.get("info") if isinstance(raw.get("info"), dict) else {}
     return LookModel(tails, tables, info, lrs)

@@ -123,7 +123,7 @@ class PerformanceModel:
         for a comparison, without calibrating again."""
         import dataclasses
 
-        from .looks import LookModel, with_prior
+        from .looks import with_prior
 
         old = self.prior_target
 
@@ -134,8 +134,8 @@ class PerformanceModel:
                                      raw=None if c.raw is None else with_prior(c.raw, old, prior_target))
             return dataclasses.replace(p, confidence=nc)
 
-        looks = None if self.looks is None else LookModel(
-            self.looks.tails, {k: conv(p) for k, p in self.looks.tables.items()}, self.looks.info, self.looks.lrs)
+        looks = None if self.looks is None else dataclasses.replace(
+            self.looks, tables={k: conv(p) for k, p in self.looks.tables.items()})
         est = dict(self.estimation)
         est.update({"prior_target": float(prior_target), "prior": "fixed", "prior_from": old})
         return PerformanceModel({d: conv(p) for d, p in self.detectors.items()}, self.provenance, est, looks)

@@ -21,6 +21,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..errors import AtrError
+from .stats import dobeck_threshold, wilson_interval
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +88,8 @@ class Responses:
                 raise ValueError(f"responses of different detectors: {p.detectors} vs {dets}")
         prov = dict(parts[0].provenance)
         prov["n_images"] = sum(int(p.provenance.get("n_images", 1)) for p in parts)
+        if any("iterations_done" in p.provenance for p in parts):  # per image, in order
+            prov["iterations_done"] = [i for p in parts for i in p.provenance.get("iterations_done", ())]
         areas = [(p.provenance.get("cell_area_m2"), max(1, int(p.provenance.get("n_cells", 1)))) for p in parts]
         areas = [(a, w) for a, w in areas if isinstance(a, (int, float)) and a > 0]
         if areas:  # weighted by the cells of each image
@@ -245,8 +248,6 @@ class Convergence:
     def done(self, target: Mapping[str, list[float]], nominal: list[float]) -> bool:
         """Whether the responses so far (each detector's, in injection order) have converged;
         call once after each iteration."""
-        from .stats import dobeck_threshold, wilson_interval
-
         nom = np.asarray(nominal, dtype=float) > 0
         use_nominal = thresholds_on_nominal(self.calibration, nom)
         ok, first = True, not self.last
@@ -327,8 +328,7 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
     shapes: list[str] = []
     traits: dict[str, list[float]] = {k: [] for k in TRAITS}
     population = _population(settings)
-    cal = getattr(settings, "calibration", None)
-    conv = Convergence(cal, pooled) if pooled is not None and cal is not None else None
+    conv = Convergence(settings.calibration, pooled) if pooled is not None else None
     conv = conv if conv is not None and conv.enabled else None
     done = 0
     for _ in range(iterations):
@@ -435,7 +435,6 @@ def pool_parts(parts: Mapping[int, Responses], *, n_usable: int, skipped: Sequen
     out = Responses.concat(ordered)
     prov = dict(out.provenance)
     prov.update({"images": [n for p in ordered for n in p.provenance["images"]], "iterations": iterations,
-                 "iterations_done": [i for p in ordered for i in p.provenance.get("iterations_done", [iterations])],
                  "targets_per_image": targets_per_image, "seed": seed, "skipped_images": list(skipped)})
     prov.update(_settings_provenance(settings))
     prov["population"]["n_nominal"] = int(out.nominal.sum())

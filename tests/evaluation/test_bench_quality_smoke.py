@@ -54,7 +54,9 @@ def test_quality_benchmark_scores_a_real_recording_for_every_method(real_data, t
                        text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     live = [c for c in map(json.loads, out.read_text().splitlines()) if c["state"] != "withdrawn"]
-    assert ds["contacts"] == sum(1 for c in live if c["bel"] >= 0.5)
+    from atr_node.config import Settings
+
+    assert ds["contacts"] == sum(1 for c in live if c["bel"] >= Settings().fusion.report_bel)
     assert "| scotsman-iver2.xtf | DS look (default) |" in (tmp_path / "q" / "quality.md").read_text()
 
 

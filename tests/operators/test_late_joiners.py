@@ -236,7 +236,7 @@ def test_a_v1_node_without_the_endpoint_is_followed_after_one_warning(live_node,
             assert fol.wait_heartbeat(60)
             node.resume_feed.set()
             node.join()
-            follow_until(fol, lambda: fol.stats.contacts >= len(node.emitted) - len(before))
+            assert follow_until(fol, lambda: fol.stats.contacts >= len(node.emitted) - len(before))
     finally:
         fol.close()
     warnings = [r for r in caplog.records if r.levelno == logging.WARNING]
@@ -262,8 +262,8 @@ def test_replay_command_serves_the_snapshot_on_the_port_after_publish(mission, t
         returncode = proc.wait(timeout=WAIT_S)
         final = [json.loads(x) for x in out.read_text().splitlines()] if returncode == 0 else []
         live = {c["id"]: c for c in final if c["state"] != "withdrawn"}
-        # until the follower's book holds what the replay wrote (published before it exited)
-        follow_until(fol, lambda: {c["id"]: c for c in fol.book.contacts()} == live)
+        if live:  # until the follower's book holds what the replay wrote (published before it exited)
+            follow_until(fol, lambda: {c["id"]: c for c in fol.book.contacts()} == live)
     finally:
         fol.close()
         if proc.poll() is None:
@@ -310,7 +310,7 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
             time.sleep(0.01)
         fol = NodeFollower(pub.endpoint, snapshot=srv.endpoint, on_contact=applied.append)
         joined.set()
-        follow_until(fol, lambda: bool(applied) and applied[-1]["seq"] == 1500)
+        assert follow_until(fol, lambda: bool(applied) and applied[-1]["seq"] == 1500)
         t.join()
     finally:
         fol.close()

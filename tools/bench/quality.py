@@ -32,6 +32,7 @@ Exit codes: 0 ok, 1 a scene failed, 2 usage.
 from __future__ import annotations
 
 import argparse
+import functools
 import csv
 import json
 import math
@@ -114,6 +115,16 @@ def _curve_figures(curve) -> dict:
     return f
 
 
+DS_METHODS = (("DS look (default)", {"evidence": "look"}),
+              ("DS paper (prior 0.1)", {"evidence": "paper", "prior_target": 0.1}))
+"""The two Dempster-Shafer forms every scene and recording is scored with (fusion options)."""
+
+
+def _share_999(contacts) -> float:
+    """Share of ``contacts`` at Bel >= 0.999 (0 without contacts)."""
+    return round(float(np.mean([c.bel >= 0.999 for c in contacts])) if contacts else 0.0, 3)
+
+
 def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dict:
     """Every method's figures on one scene (see the module docstring)."""
     from atr_node.commands.replay import build_model
@@ -136,8 +147,7 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
     one_leg, _ = _read_points(scene_dir / "one_leg.csv", run.frame)
     t_en, t_rows = _read_points(scene_dir / "truth.csv", run.frame)
     multi = np.array([int(r.get("looks") or 0) >= 2 for r in t_rows], dtype=bool)
-    for name, kw in (("DS look (default)", {"evidence": "look"}),
-                     ("DS paper (prior 0.1)", {"evidence": "paper", "prior_target": 0.1})):
+    for name, kw in DS_METHODS:
         contacts, grid = fuse(run, en, **kw)
         curve = comp._roc(name, contacts)
         at_node = [c for c in node_like_contacts(run, grid) if c.bel >= report]
@@ -146,7 +156,7 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
         fig = _curve_figures(curve)
         fig.update({"op_pd": round(p.pd, 3), "op_fa": p.false_alarms,
                     "roc_fa_at_op_pd": curve.fa_at_pd(p.pd) if p.pd > 0 else 0.0,
-                    "share_bel_999": round(float(np.mean([c.bel >= 0.999 for c in at_node])) if at_node else 0.0, 3),
+                    "share_bel_999": _share_999(at_node),
                     "reliability": _reliability(contacts, comp.truth_en),
                     "one_leg_objects": int(len(one_leg)),
                     "one_leg_above_report": int(_near(one_leg, _en(at_node)).sum()),
@@ -166,6 +176,7 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
     return out
 
 
+@functools.lru_cache(maxsize=1)
 def _real_tool():
     """tools/figures/real_recordings.py: the objects read by eye on the shared recordings and
     how a contact is matched to them (one definition for the figures and this benchmark)."""
@@ -186,17 +197,20 @@ def score_recording(path: Path, settings, *, online: str) -> dict:
     rank them on)."""
     from atr_node.commands.replay import build_model
     from atr_node.evaluation.methods import _gate, _records, fuse, node_like_contacts, run_pipeline
+    from atr_node.errors import AtrError
     from atr_node.evaluation.waterfall import locate_contacts
     from atr_node.fusion.baselines import and_contacts, or_contacts
     from atr_node.node.service import open_recording
     from atr_node.records.tile import Tile
 
     rr = _real_tool()
-    crs, alt = settings.recording.crs, settings.recording.altitude
     t0 = time.monotonic()
+    records = list(open_recording(path, crs=settings.recording.crs, altitude=settings.recording.altitude))
+    tiles = [Tile.from_map(r.msg) for r in records if r.link == "sonar"]
+    if not any(t.nav is not None for t in tiles):
+        raise AtrError(f"{path}: no ping has a position: no contact can be placed on its waterfall")
     model, calibrator = build_model(settings, None, online, deterministic=True)
-    run = run_pipeline(settings, open_recording(path, crs=crs, altitude=alt), model=model, online=calibrator)
-    tiles = [Tile.from_map(r.msg) for r in open_recording(path, crs=crs, altitude=alt) if r.link == "sonar"]
+    run = run_pipeline(settings, records, model=model, online=calibrator)
     pings, frame, dx = rr.recording_pings(tiles, settings)
     en = tuple(settings.detectors.enabled)
     gate = _gate(settings)
@@ -204,31 +218,29 @@ def score_recording(path: Path, settings, *, online: str) -> dict:
     noisiest = max(en, key=lambda d: len(recs[d]))
     and3 = tuple(d for d in en if d != noisiest) if len(en) > 3 else en
     report = settings.fusion.report_bel
-    n_marks = len(rr.MARKS.get(path.stem, []))
 
     def figures(east_north: np.ndarray) -> dict:
         lat, lon = run.frame.to_latlon(east_north[:, 0], east_north[:, 1]) if len(east_north) else ((), ())
         cs = [{"id": i, "lat_deg": float(a), "lon_deg": float(b)} for i, (a, b) in enumerate(zip(np.ravel(lat), np.ravel(lon)))]
         places = locate_contacts(pings, cs, frame)
         found, wreck = rr.match_marks(path.stem, places, dx)
-        return {"contacts": len(cs), "placed": len(places), "marks": n_marks,
+        return {"contacts": len(cs), "placed": len(places), "marks": len(found),
                 "marks_found": sum(1 for _, ids in found if ids), "found": {label: bool(ids) for label, ids in found},
                 "wreck_contacts": None if wreck is None else len(wreck)}
 
     out: dict = {"recording": path.name, "methods": {}}
-    for name, kw in (("DS look (default)", {"evidence": "look"}),
-                     ("DS paper (prior 0.1)", {"evidence": "paper", "prior_target": 0.1})):
+    for name, kw in DS_METHODS:
         _, grid = fuse(run, en, **kw)
         live = node_like_contacts(run, grid)
         at = [c for c in live if c.bel >= report]
         fig = figures(_en(at))
-        fig["share_bel_999"] = round(float(np.mean([c.bel >= 0.999 for c in at])) if at else 0.0, 3)
+        fig["share_bel_999"] = _share_999(at)
         fig["no_detection"] = int(sum(1 for c in live if c.detections == 0))
         out["methods"][name] = fig
     all_recs = [r for d in en for r in recs[d]]
     for name, cs in ((f"AND-3 ({'+'.join(and3)})", and_contacts(all_recs, gate_m=gate, detectors=and3)),
                      ("OR", or_contacts(all_recs, gate_m=gate))):
-        out["methods"][name] = figures(np.array([(c.east_m, c.north_m) for c in cs]).reshape(-1, 2))
+        out["methods"][name] = figures(_en(cs))
     out["methods"]["vote 2 of 4"] = figures(_vote(all_recs, gate, 2))
     out["seconds"] = round(time.monotonic() - t0, 1)
     return out
@@ -364,9 +376,8 @@ def main_heldout(argv: list[str] | None = None) -> int:
             ds = results[-1]["methods"].get("DS look (default)", {})
             harness.value(f"{d.name} DS look pd_max", ds.get("pd_max"))
     if args.recordings is None:
-        shared = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "xtf"
-        paths = [] if args.quick else [p for p in (shared / "scotsman-iver2.xtf", shared / "river-000_1236.xtf")
-                                       if p.is_file()]
+        rr = _real_tool()
+        paths = [] if args.quick else [p for p in (rr.SHARED / name for name in rr.DEFAULT_FILES) if p.is_file()]
     else:
         paths = [Path(p) for p in args.recordings.split(",") if p and p != "none"]
     recordings = []

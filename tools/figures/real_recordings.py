@@ -38,6 +38,8 @@ from atr_node.geo import MissionFrame  # noqa: E402
 from atr_node.records.tile import Tile  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data" / "real" / "xtf"
+DEFAULT_FILES = ("scotsman-iver2.xtf", "river-000_1236.xtf")
+"""The shared recordings with side-scan pings."""
 
 # Objects read by eye on the waterfalls (shared/data/real/README.md, docs/xtf.md): side, ping,
 # slant range (m), label. The wreck of the Iver2 file is a box: side, first and last ping,
@@ -115,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--config", help="config file (as for replay; also passed to it)")
     ap.add_argument("--json", help="write the table as JSON here")
     args = ap.parse_args(argv)
-    files = [Path(f) for f in args.files] or [SHARED / "scotsman-iver2.xtf", SHARED / "river-000_1236.xtf"]
+    files = [Path(f) for f in args.files] or [SHARED / name for name in DEFAULT_FILES]
     settings = load_settings(args.config)
     if args.config:
         extra = ["--config", args.config, *extra]
