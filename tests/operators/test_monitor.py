@@ -143,8 +143,9 @@ def test_monitor_command_against_a_live_node_with_png(live_node, tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     stdout, stderr = StreamLines(proc.stdout), StreamLines(proc.stderr)
     try:
-        # the first frame with a heartbeat: the node is up and the monitor subscribed
-        stdout.wait_for(lambda t: any("heartbeat" in x and not ("node" in x and "waiting" in x)
+        # the first frame with a heartbeat received (its node line says "heartbeat N s ago"; the
+        # "received  0 heartbeats" line of earlier frames does not count): the monitor is subscribed
+        stdout.wait_for(lambda t: any(x.startswith("node") and "heartbeat" in x and " ago" in x
                                       for x in t.splitlines()))
         node.release()
         node.join()
