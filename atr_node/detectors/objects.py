@@ -67,6 +67,9 @@ HYSTERESIS = 0.3
 CLOSE_LENGTHS = 1.0
 """Gaps of up to about this many template lengths between the highlight and shadow pieces of
 an object are closed (the near and far rims of a hull, its shadow)."""
+COARSE_LENGTHS = 0.5
+"""Sigma of the coarse scale, in template lengths: an extended object has a shadow there (a
+patch of ripples, rock or sand waves is bright and dark on a finer scale, so it has none)."""
 MARGIN_LENGTHS = 0.5
 """A detection anchored this many template lengths from an object belongs to it."""
 
@@ -175,11 +178,16 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
     long_enough = ok.sum(axis=0) * cy >= 4 * template_length_m
     q_lo, q_hi = np.quantile(sm, (1.0 - BAND_FRACTION, BAND_FRACTION), axis=0)
     # b(j) follows a band that stays put, so a band shows in I_n only where it drifts: bands
-    # are found in the intensities I_n b(j), against their median over +-4 template lengths
-    # of range (the range trend of the seabed: gains, beam pattern)
-    bc = np.where(np.isfinite(b) & (b > 0), b, 0.0)
-    bc = np.pad(bc, (0, w * fx - cols)).reshape(w, fx).mean(axis=1)
-    q_raw, med_raw = np.quantile(sm * bc[None, :], (1.0 - BAND_FRACTION, 0.5), axis=0)
+    # are found in the intensities themselves (their cell means, smoothed as I_n is), against
+    # their median over +-4 template lengths of range (the range trend of the seabed: gains,
+    # beam pattern). Not as I_n times b(j): b(j) is a mean, and one bright target raises it in
+    # its own columns, so smoothed I_n times that b(j) made the target's column a "band"
+    xr = np.zeros((h * fy, w * fx), np.float32)
+    np.copyto(xr[:rows, :cols], x, where=valid[:rows, :cols])
+    raw = np.where(ok, cv2.resize(xr, (w, h), interpolation=cv2.INTER_AREA) / np.maximum(n, 1e-6), 0.0)
+    raw = np.where(ok, raw, np.median(raw[ok])).astype(np.float32)
+    raw = cv2.GaussianBlur(raw, (0, 0), 1.0, borderType=cv2.BORDER_REFLECT)
+    q_raw, med_raw = np.quantile(raw, (1.0 - BAND_FRACTION, 0.5), axis=0)
     trend = ndimage.median_filter(med_raw, size=2 * round(4 * template_length_m / cx) + 1, mode="nearest")
     band = long_enough & ((q_lo > highlight * level) | (q_raw > highlight * trend))
     bright_level = np.where(long_enough, np.maximum(q_lo, level), level)[None, :]
@@ -193,7 +201,13 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
     seeded[0] = False
     hi = seeded[weak_lab]
     # likewise a dark band (the water column next to the nadir) is flattened, not a shadow
-    lo = ok & (sm < shadow * np.where(long_enough, np.minimum(q_hi, level), level)[None, :])
+    shadow_level = shadow * np.where(long_enough, np.minimum(q_hi, level), level)[None, :]
+    lo = ok & (sm < shadow_level)
+    # 5b. the coarse scale: seabed texture (ripples, rock, sand waves) averages out over it, the
+    # shadow of an object metres across does not
+    deep = ok & (cv2.GaussianBlur(mean, (0, 0), sigmaX=COARSE_LENGTHS * template_length_m / cx,
+                                  sigmaY=COARSE_LENGTHS * template_length_m / cy,
+                                  borderType=cv2.BORDER_REFLECT) < shadow_level)
     owner = np.zeros((h, w), np.int32)
     # 4. echo and shadow pieces of one object, joined
     close_m, margin_m = CLOSE_LENGTHS * template_length_m, MARGIN_LENGTHS * template_length_m
@@ -223,6 +237,8 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
             spans and (last_row - first_row + 1) * cy >= 4 * template_length_m))
         if obj.length_m < extended_m and not is_band:
             continue
+        if not is_band and not deep[r0:r0 + bh, c0:c0 + bw][win].any():
+            continue  # no shadow at the coarse scale: textured seabed, not an object
         obj = replace(obj, background=bool(is_band or obj.length_m > max_length_m))
         objects.append(obj)
         # its cells, and a margin, belong to it (the first object wins where margins meet)

@@ -366,3 +366,66 @@ def test_touching_pieces_are_one_contact_and_apart_ones_are_not(frame):
     assert third.length_m == pytest.approx(10.0) and third.north_m == pytest.approx(68.5)
     inc.restore(inc.state())
     assert inc.update(grid, 20.0) == [] and full.update(grid, 20.0) == []
+
+
+# -- textured seabed is not an object (the held-out benchmark's ripples and SASSED textures) --
+RIPPLE_ROWS = (60, 460)  # a 40 m x 30 m field of sand ripples, 1 m apart, crests 45 deg to the track
+RIPPLE_M = (15.0, 45.0)
+TARGET = dict(row=260, range_m=30.0)  # a proud mine-sized object in the middle of the field
+
+
+def ripple_scene(seed: int = 11, target_gain: float = 8.0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    img = rng.exponential(1.0, (ROWS, COLS)).astype(np.float32)
+    rr, cc = np.mgrid[0:ROWS, 0:COLS]
+    y, r = rr * DX, RANGE0 + cc * DR
+    field = (rr >= RIPPLE_ROWS[0]) & (rr < RIPPLE_ROWS[1]) & (r >= RIPPLE_M[0]) & (r < RIPPLE_M[1])
+    phase = 2.0 * math.pi * (y + r) / math.sqrt(2.0)  # wavelength 1 m across the crests
+    crest = np.clip(np.sin(phase), 0.0, None) ** 2  # bright flanks facing the sonar ...
+    trough = np.clip(-np.sin(phase), 0.0, None) ** 2  # ... and dark ones facing away
+    img[field] *= (1.0 + 4.0 * crest - 0.9 * trough)[field].astype(np.float32)
+    ty, tr = TARGET["row"] * DX, TARGET["range_m"]
+    img[(np.abs(y - ty) <= 0.75) & (r > tr + 0.4) & (r <= tr + 2.4)] *= 0.05
+    img[(np.abs(y - ty) <= 0.75) & (np.abs(r - tr) <= 0.4)] *= target_gain
+    return img
+
+
+def object_map(img: np.ndarray):
+    return find_objects(img, img.mean(axis=0), dr_m=DR, dx_m=DX, template_length_m=2.0, echo_width_m=0.6,
+                        highlight=2.0, shadow=0.3, max_length_m=60.0)
+
+
+def test_a_ripple_field_is_seabed_not_an_extended_object():
+    """A field of ripples is bright and dark on the scale of a metre, and brighter than flat sand
+    as a whole: without the coarse-scale shadow test it was one 40 m "object", and every
+    detection in it, a target's too, was replaced by one at the field's centre."""
+    om = object_map(ripple_scene())
+    col = int((TARGET["range_m"] - RANGE0) / DR)
+    assert om.owner_at(np.array([TARGET["row"]]), np.array([col]))[0] == 0
+    assert [o for o in om.objects if o.length_m > 10.0] == []
+
+
+def test_a_target_in_a_ripple_field_is_a_contact_where_it_is():
+    settings = Settings()
+    pipe = Pipeline(settings, model=PerformanceModel.shipped(), emit=lambda m: None, workers=0)
+    try:
+        pipe.feed(LogRecord(t=1.7e9 + 60.0, link="sonar", msg=tile_map(ripple_scene())))
+        pipe.finish()
+        near = [c for c in live(pipe) if offset_m(c, TARGET["row"], TARGET["range_m"] + 0.4) < 3.0]
+    finally:
+        pipe.close()
+    assert len(near) == 1 and "length_m" not in near[0], near
+
+
+def test_a_bright_target_does_not_make_its_range_a_band():
+    """b(j) is a mean, so one very bright target raises it in its own columns; the band test on
+    the intensities once read them as I_n times that b(j) and called the target's column a
+    band at constant range, dropping its detections."""
+    rng = np.random.default_rng(4)
+    img = rng.exponential(1.0, (256, COLS)).astype(np.float32)
+    col, row = 200, 128
+    img[row - 7:row + 8, col - 4:col + 4] *= 300.0  # +25 dB over the seabed, 1.5 m x 0.8 m
+    img[row - 7:row + 8, col + 4:col + 24] *= 0.05
+    om = object_map(img)
+    assert (om.owner == -1).sum() == 0
+    assert om.owner_at(np.array([row]), np.array([col]))[0] == 0
