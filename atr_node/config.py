@@ -418,6 +418,8 @@ class FusionSettings:
     """A reported contact whose Bel(T) falls below this is withdrawn (hysteresis)."""
     diagnostics: bool = False
     """Keep per-detector accumulators per cell as well."""
+    miss_pd_max: float = 1.0
+    """EXPERIMENT cap on Pd of missed-detection evidence."""
     evidence: Literal["look", "paper"] = "look"
     """(SPEC 6.1) ``"look"``: one piece of evidence per look (leg pass) and cell from the
     detectors' joint behaviour; ``"paper"``: one per detector, detectors independent."""

@@ -19,7 +19,12 @@ where the evidence is, and the detections are regrouped (:func:`group_detections
 5. per component, the extent from its highlight cells only (the shadow is not the object):
    centroid, long-axis direction from the second moments, length and width as the spread
    of the cells along and across that axis (plus one cell);
-6. an object at least ``2 x template.length_m`` long is **extended**; one longer than
+6. an object needs a shadow at the coarse scale (``I_n`` smoothed by a Gaussian of
+   :data:`COARSE_LENGTHS` template lengths below the shadow level somewhere in its
+   component): over that scale seabed texture (ripples, rock, sand waves) averages out, so a
+   textured patch, however bright, is seabed and its detections stay as they are (a target
+   in a ripple field keeps its own); the shadow of a hull metres across does not;
+7. an object at least ``2 x template.length_m`` long is **extended**; one longer than
    ``max_object_length_m``, or a narrow one within ``BAND_AXIS_DEG`` of the track that spans
    the whole unit or lies along a band column (a band at constant range, drifting with the
    altitude), is **background**.
@@ -203,7 +208,7 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
     # likewise a dark band (the water column next to the nadir) is flattened, not a shadow
     shadow_level = shadow * np.where(long_enough, np.minimum(q_hi, level), level)[None, :]
     lo = ok & (sm < shadow_level)
-    # 5b. the coarse scale: seabed texture (ripples, rock, sand waves) averages out over it, the
+    # 6. the coarse scale: seabed texture (ripples, rock, sand waves) averages out over it, the
     # shadow of an object metres across does not
     deep = ok & (cv2.GaussianBlur(mean, (0, 0), sigmaX=COARSE_LENGTHS * template_length_m / cx,
                                   sigmaY=COARSE_LENGTHS * template_length_m / cy,
