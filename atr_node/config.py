@@ -339,6 +339,10 @@ class CalibrationSettings:
     """The look score z of SPEC 6.1 (docs/fusion.md): ``"lr"`` sums per-detector log likelihood
     ratios of the injected targets against the background (a weak response counts against),
     ``"fisher"`` sums the background tails ``-ln S_N`` (never below 0)."""
+    look_pd: float = 0.95
+    """A look detects where its score z reaches z_tau, the largest threshold that keeps this share
+    of the injected targets (fired and z >= z_tau); weaker looks count as misses (SPEC 6.1,
+    docs/fusion.md). 0: every look on which a detector fired detects (models before 2026-11-25)."""
     pd_target: float = 0.95
     range_bin_m: float = 10.0
     online: bool = True
@@ -389,6 +393,7 @@ class CalibrationSettings:
         _check(0.0 < self.prior_target < 1.0, "calibration.prior_target", "must be in (0, 1)")
         _check(self.prior in ("area", "fixed"), "calibration.prior", "must be 'area' or 'fixed'")
         _check(self.look_score in ("lr", "fisher"), "calibration.look_score", "must be 'lr' or 'fisher'")
+        _check(0.0 <= self.look_pd < 1.0, "calibration.look_pd", "must be in [0, 1)")
         _check(0.0 < self.target_density_km2 <= 1e6, "calibration.target_density_km2", "must be in (0, 1e6]")
         _check(0.0 < self.pd_target < 1.0, "calibration.pd_target", "must be in (0, 1)")
         _check(self.range_bin_m > 0, "calibration.range_bin_m", "must be > 0")
@@ -418,8 +423,6 @@ class FusionSettings:
     """A reported contact whose Bel(T) falls below this is withdrawn (hysteresis)."""
     diagnostics: bool = False
     """Keep per-detector accumulators per cell as well."""
-    miss_pd_max: float = 1.0
-    """EXPERIMENT cap on Pd of missed-detection evidence."""
     evidence: Literal["look", "paper"] = "look"
     """(SPEC 6.1) ``"look"``: one piece of evidence per look (leg pass) and cell from the
     detectors' joint behaviour; ``"paper"``: one per detector, detectors independent."""

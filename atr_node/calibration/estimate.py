@@ -125,6 +125,27 @@ def cell_prior(calibration: CalibrationSettings, provenance: Mapping[str, Any]) 
         "prior": "area", "target_density_km2": float(calibration.target_density_km2), "cell_area_m2": area}
 
 
+def look_tau(z_t: np.ndarray, fired_t: np.ndarray, look_pd: float) -> float:
+    """The look's threshold z_tau: the largest z with ``P(fired and z >= z_tau | T) >= look_pd``
+    over the covered injected targets (``z_t`` finite); -inf with ``look_pd = 0`` or when the
+    fired targets are fewer than that share (every fired look then detects).
+
+    A look whose detectors fired only weakly (a lone detector just over its threshold, as
+    textured seabed makes them on every pass) is far more often seabed than target: counted as
+    a detection it gave its small T mass and blocked that look's miss evidence, so an object
+    seen on one leg, or clutter, kept the Bel another pass should have taken away.
+    """
+    z = np.asarray(z_t, dtype=np.float64)
+    covered = np.isfinite(z)
+    if look_pd <= 0.0 or not covered.any():
+        return -math.inf
+    hits = np.sort(z[covered & np.asarray(fired_t, dtype=bool)])[::-1]  # strongest first
+    k = math.ceil(look_pd * int(covered.sum()))  # targets the threshold must keep
+    if k < 1 or hits.size < k:
+        return -math.inf
+    return float(hits[k - 1])
+
+
 def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: Any, prior_target: float,
                    edges_m: np.ndarray) -> _looks.LookModel:
     """Look tables for every non-empty subset of ``responses.detectors`` (SPEC 6.1).
@@ -142,7 +163,8 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     info: dict[str, Any] = {"score": _looks.LR_SCORE_DEFINITION if lrs is not None else _looks.SCORE_DEFINITION,
                             "fired": "at least one detector of the set above its threshold",
                             "confidence": "P(T | Z >= z, fired), prior per cell as for the detectors",
-                            "pd": "share of injected targets on which the set fired, per range bin"}
+                            "pd": "share of injected targets on which the set fired with z >= tau (the look's threshold, "
+                                  f"look_pd {calibration.look_pd:g}), per range bin"}
     if len(sizes) != 1:
         info["skipped"] = "non-target responses of the detectors are not joint (different lengths)"
         return _looks.LookModel(tails, {}, info, lrs)
@@ -151,18 +173,21 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
         for subset in itertools.combinations(dets, n):
             z_t, f_t, z_n, f_n = _looks.look_scores(responses.target, responses.nontarget, taus, terms, subset)
             fired_z = np.concatenate([z_t[f_t & np.isfinite(z_t)], z_n[f_n & np.isfinite(z_n)]])
-            # the fired responses above a threshold below all of them, the others below it:
-            # confidence_curve's "exceedances" are then exactly the fired ones
+            # every fired response above a threshold below all of them, the others below it ...
             tau = float(fired_z.min()) - 1e-9 * max(1.0, abs(float(fired_z.min()))) if fired_z.size else 0.0
             below = tau - 1.0
+            # ... then the look's own threshold z_tau: a look whose z stays below it counts as a
+            # miss, and P(y) is measured with the same rule (look_tau)
+            tau = max(tau, look_tau(z_t, f_t, calibration.look_pd))
             x_t = np.where(f_t, z_t, np.where(np.isfinite(z_t), below, np.nan))
             x_n = np.where(f_n, z_n, np.where(np.isfinite(z_n), below, np.nan))
             conf = confidence_curve(x_t, x_n, tau, prior_target=prior_target,
                                     n_points=calibration.confidence_points, smoothing=calibration.smoothing)
-            det_t = np.where(np.isfinite(z_t), f_t.astype(np.float64), np.nan)
+            hit_t = f_t & (z_t >= tau)
+            det_t = np.where(np.isfinite(z_t), hit_t.astype(np.float64), np.nan)
             pyr = pd_curve(responses.target_range_m, det_t, 0.5, edges_m=edges_m, smoothing=calibration.smoothing)
             covered = np.isfinite(z_t)
-            pd_tau = float(np.mean(f_t[covered])) if covered.any() else math.nan
+            pd_tau = float(np.mean(hit_t[covered])) if covered.any() else math.nan
             tables[_looks.subset_key(subset)] = DetectorPerformance(tau=tau, confidence=conf, pyr=pyr, tau_source="look",
                                                              pd_at_tau=pd_tau)
     return _looks.LookModel(tails, tables, info, lrs)

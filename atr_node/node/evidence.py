@@ -44,7 +44,7 @@ def evidence_layers(evidence: str, model: Any, enabled: Sequence[str]) -> tuple[
 
 def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], covered: Callable[[str], np.ndarray],
                       ranges_m: np.ndarray, enabled: Sequence[str], layers: Sequence[str], *,
-                      missed: bool = True, pd_max: float = 1.0) -> tuple[DetectorObservation, ...]:
+                      missed: bool = True) -> tuple[DetectorObservation, ...]:
     """The observations of one unit's core for a grid with evidence ``layers``.
 
     Parameters
@@ -65,7 +65,7 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
         out = []
         for d in enabled:
             dets = tuple(DetectionEvidence.from_detection(x, float(model.confidence(d, x.gamma))) for x in detections[d])
-            pd = _pd(model.pd(d, ranges_m), pd_max) if missed else np.zeros(ranges_m.size)
+            pd = _pd(model.pd(d, ranges_m)) if missed else np.zeros(ranges_m.size)
             out.append(DetectorObservation(d, covered(d), pd, dets))
         return tuple(out)
     table = model.look(enabled)
@@ -84,19 +84,21 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
         for d in enabled:
             dets += [DetectionEvidence.from_detection(x, float(model.confidence(d, x.gamma)), source=d)
                      for x in detections[d]]
-        pd = np.max([_pd(model.pd(d, ranges_m), pd_max) for d in enabled], axis=0) if missed else np.zeros(ranges_m.size)
+        pd = np.max([_pd(model.pd(d, ranges_m)) for d in enabled], axis=0) if missed else np.zeros(ranges_m.size)
     else:
         for d in enabled:
             for x in detections[d]:
                 joint = dict(x.joint) if x.joint is not None else {d: x.gamma}
                 z = model.look_score({k: np.float64(v) for k, v in joint.items()}, enabled)
+                if not z >= table.tau:
+                    continue  # a look this weak is a miss (calibration.look_pd): no T mass here
                 c = float(np.clip(table.confidence_at(z), 0.0, 1.0))
                 dets.append(DetectionEvidence.from_detection(x, c, source=d))
-        pd = _pd(table.pd_at(ranges_m), pd_max) if missed else np.zeros(ranges_m.size)
+        pd = _pd(table.pd_at(ranges_m)) if missed else np.zeros(ranges_m.size)
     if cov is None:
         return ()
     return (DetectorObservation(LOOK_LAYER, cov, pd, tuple(dets)),)
 
 
-def _pd(pd: np.ndarray, pd_max: float = 1.0) -> np.ndarray:
-    return np.clip(np.nan_to_num(np.asarray(pd, dtype=np.float64), nan=0.0), 0.0, pd_max)
+def _pd(pd: np.ndarray) -> np.ndarray:
+    return np.clip(np.nan_to_num(np.asarray(pd, dtype=np.float64), nan=0.0), 0.0, 1.0)

@@ -721,7 +721,7 @@ class Pipeline:
         geometry = tile_geometry(core, self.frame)
         ranges = core.ranges_m
         observations = unit_observations(model, res.detections, res.covered, ranges, self.enabled,
-                                         self.grid.layers, pd_max=self.settings.fusion.miss_pd_max)
+                                         self.grid.layers)
         t = float(unit.ping_time[unit.core][-1])
         self._last_t = max(self._last_t, t)
         t1 = time.monotonic()

@@ -90,7 +90,7 @@ def responses(rng, *, m=2000, k=20000) -> Responses:
 
 def test_lr_ranks_a_target_above_scatterers_that_fisher_ranks_above_it(rng):
     resp = responses(rng)
-    cal = dict(prior="fixed", prior_target=0.1)
+    cal = dict(prior="fixed", prior_target=0.1, look_pd=0.0)  # the scores' ranking, every fired look
     lr = estimate_model(resp, calibration=CalibrationSettings(look_score="lr", **cal), thresholds=ThresholdSettings())
     fisher = estimate_model(resp, calibration=CalibrationSettings(look_score="fisher", **cal),
                             thresholds=ThresholdSettings())

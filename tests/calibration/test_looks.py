@@ -52,15 +52,27 @@ def test_tail_table_is_the_jeffreys_survival_at_its_knots(rng):
     assert tail_table(np.full(7, np.nan)).u.tolist() == [0.0, 0.0]  # no response: tells nothing
 
 
-def test_look_pd_is_the_share_of_targets_on_which_any_detector_fired(rng):
+@pytest.mark.parametrize("look_pd", [0.0, 0.9, 0.95])
+def test_look_pd_is_the_share_of_targets_on_which_the_look_detected(rng, look_pd):
+    """P(y) of a look: injected targets on which a detector fired and, with look_pd > 0, the
+    look score reached z_tau; z_tau the largest threshold keeping look_pd of them (0: any)."""
     resp = joint_responses(rng)
-    cal = CalibrationSettings(prior="fixed")
+    cal = CalibrationSettings(prior="fixed", look_pd=look_pd)
     model = estimate_model(resp, calibration=cal, thresholds=ThresholdSettings())
     for subset in (("mf",), ("mf", "smf"), DETS):
         table = model.look(subset)
         fired = np.zeros(resp.n_targets, bool)
         for d in subset:
             fired |= resp.target[d] > model.tau[d]
+        z = np.array([float(model.look_score({d: np.float64(resp.target[d][i]) for d in subset}, subset))
+                      for i in range(resp.n_targets)])
+        if look_pd > 0 and fired.mean() >= look_pd:
+            hits = np.sort(z[fired])[::-1]
+            k = math.ceil(look_pd * resp.n_targets)
+            assert table.tau == hits[k - 1]  # the k-th strongest fired target: look_pd kept ...
+            assert (fired & (z >= table.tau)).mean() >= look_pd
+            assert (fired & (z > table.tau)).mean() < look_pd  # ... and no higher threshold keeps it
+        fired &= z >= table.tau
         edges = table.pyr.edges_m
         for b in range(edges.size - 1):
             inb = (resp.target_range_m >= edges[b]) & (resp.target_range_m < edges[b + 1])

@@ -23,7 +23,7 @@ POINT = (35.0, 20.0)  # east, north
 
 
 @pytest.fixture(scope="module")
-def model():
+def responses():
     rng = np.random.default_rng(3)
     m, k = 1500, 20000
     r = rng.uniform(10.0, 60.0, size=m)
@@ -33,28 +33,44 @@ def model():
         return {d: shift + math.sqrt(0.8) * common + math.sqrt(0.2) * rng.normal(size=n) for d in DETS}
 
     resp = Responses(DETS, draws(m, 3.5), draws(k, 0.0), r, ("cylinder",) * m, {"cell_area_m2": 5.0})
-    return estimate_model(resp, calibration=CalibrationSettings(prior="fixed", prior_target=0.01),
+    return resp
+
+
+@pytest.fixture(scope="module")
+def model(responses):
+    """Every fired look detects (look_pd 0): Pd(r) flat enough for the closed forms below."""
+    return estimate_model(responses, calibration=CalibrationSettings(prior="fixed", prior_target=0.01, look_pd=0.0),
                           thresholds=ThresholdSettings())
 
 
-def look(frame, model, leg, east0, heading, *, hit: bool, layers, gamma=4.5):
+@pytest.fixture(scope="module")
+def model_95(responses):
+    """The default rule: a look detects where z keeps 95 % of the injected targets."""
+    return estimate_model(responses, calibration=CalibrationSettings(prior="fixed", prior_target=0.01, look_pd=0.95),
+                          thresholds=ThresholdSettings())
+
+
+def look(frame, model, leg, east0, heading, *, hit: bool, layers, gamma: float | dict = 4.5):
     g = track_geometry(frame, east0_m=east0, north0_m=0.0 if heading == 0.0 else 40.0, heading_deg=heading, rows=400,
                        cols=500, leg=leg)
     row, col = pixel_of(g, *POINT)
     dets = {d: [] for d in DETS}
     if hit:
-        joint = tuple((d, gamma) for d in DETS)
-        dets = {d: [Detection(d, row, col, gamma, float(g.ranges_m[col]), 0.6, 2.0, 50, joint=joint)] for d in DETS}
+        gam = gamma if isinstance(gamma, dict) else {d: gamma for d in DETS}
+        joint = tuple((d, gam[d]) for d in DETS)
+        dets = {d: [Detection(d, row, col, gam[d], float(g.ranges_m[col]), 0.6, 2.0, 50, joint=joint)]
+                for d in DETS if gam[d] > model.tau[d]}
+        dets.update({d: [] for d in DETS if d not in dets})
     cov = np.ones((400, 500), bool)
     obs = unit_observations(model, dets, lambda d: cov, g.ranges_m, DETS, layers)
     return Observation(leg, 1.7e9 + leg, g, obs)
 
 
-def bel(frame, model, views, evidence):
+def bel(frame, model, views, evidence, gamma: float | dict = 4.5):
     layers = evidence_layers(evidence, model, DETS)
     grid = EvidenceGrid(FusionSettings(evidence=evidence), gate_m=3.0, detectors=DETS, layers=layers)
     for leg, east0, heading, hit in views:
-        grid.add_observation(look(frame, model, leg, east0, heading, hit=hit, layers=layers))
+        grid.add_observation(look(frame, model, leg, east0, heading, hit=hit, layers=layers, gamma=gamma))
     grid.close_all()
     return float(grid.masses_at(*POINT).m_t), grid
 
@@ -114,3 +130,28 @@ def test_a_model_without_look_tables_falls_back_to_the_paper(frame, model, caplo
     old = dataclasses.replace(model, looks=None)
     assert evidence_layers("look", old, DETS) == DETS
     assert "no look-level table" in caplog.text
+
+
+def test_a_look_that_fired_weakly_is_a_miss(frame, model_95):
+    """One detector just over its threshold, the others quiet: z below the look's z_tau. Under
+    the default rule (look_pd 0.95) that look gives no T mass, so the object ends with the
+    same Bel as if the look had not fired at all; counted as a detection it kept its T mass."""
+    tau = model_95.tau
+    weak = {d: (tau[d] + 0.05 if d == "lac" else tau[d] - 3.0) for d in DETS}
+    z = model_95.look_score({d: np.float64(v) for d, v in weak.items()}, DETS)
+    table = model_95.look(DETS)
+    assert z < table.tau < model_95.look_score({d: np.float64(4.5) for d in DETS}, DETS)
+    weak_look = [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True)]
+    b, grid = bel(frame, model_95, weak_look, "look", gamma=weak)
+    assert b == 0.0 and grid.detections == []  # both looks weak: no T mass, no detection record
+    two_strong, _ = bel(frame, model_95, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True)], "look",
+                              gamma=4.5)
+    # a strong look, then a weak one: as a strong look and a miss
+    mixed_layers = evidence_layers("look", model_95, DETS)
+    grid2 = EvidenceGrid(FusionSettings(), gate_m=3.0, detectors=DETS, layers=mixed_layers)
+    grid2.add_observation(look(frame, model_95, 1, 0.0, 0.0, hit=True, layers=mixed_layers))
+    grid2.add_observation(look(frame, model_95, 2, 70.0, 180.0, hit=True, layers=mixed_layers, gamma=weak))
+    grid2.close_all()
+    b_mixed = float(grid2.masses_at(*POINT).m_t)
+    b_miss, _ = bel(frame, model_95, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)], "look")
+    assert b_mixed == pytest.approx(b_miss, rel=1e-12) and b_mixed < two_strong
