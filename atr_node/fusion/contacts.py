@@ -10,7 +10,8 @@ form several groups (each within the gate of its strongest detection) is split, 
 going to the nearest group. A contact's position comes from its detections
 (:func:`detection_position`: their confidence-weighted mean; ``sigma_m`` their spread plus
 ``nav_sigma_m`` in quadrature); ``bel``, ``pl`` and ``m_theta`` are those of the region's
-peak cell.
+peak cell, and for a split group beyond the first (a weaker object beside a stronger one)
+those of the cell at its own position (:func:`_cell_at`).
 
 Extended objects (a wreck, ``detectors/objects.py``) come from the detect stage in pieces when
 they cross units' edges, one per unit, each at its own centre: components whose detections'
@@ -349,6 +350,16 @@ def detection_position(detections: Sequence[DetectionRecord], idx: Sequence[int]
     return e, n, math.sqrt(0.5 * var + float(nav_sigma_m) ** 2)
 
 
+def _cell_at(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, cells: np.ndarray, ce: float, cn: float) -> int:
+    """The cell of ``cells`` (indices, in the extraction's order) nearest to (ce, cn); the first
+    on a tie. A split group beyond the first reads its Bel(T) there, not at its peak: its
+    cells border the stronger group's, whose gate reaches them with that group's T mass, and
+    at its peak it read the neighbour's Bel (a one-detection satellite 4 m from a rock seen on
+    three legs published the rock's 0.998)."""
+    e, n = grid.cell_centre(iy[cells], ix[cells])
+    return int(cells[int(np.argmin((e - ce) ** 2 + (n - cn) ** 2))])
+
+
 def _peaks(bel: np.ndarray, lab: np.ndarray, n_comp: int) -> np.ndarray:
     """Per component label, its peak cell: index of its highest Bel(T), the last such cell on
     a tie (the position comes from the detections, :func:`detection_position`)."""
@@ -573,11 +584,14 @@ class ContactTracker:
         members = [d_order[d_bounds[j]:d_bounds[j + 1]].tolist() for j in range(n_comp)]
         # position from the detections behind a component (SPEC 7); one without any is never a
         # contact (SPEC 7)
+        l_order = np.argsort(lab, kind="stable")
+        l_bounds = np.searchsorted(lab[l_order], np.arange(n_comp + 1))
         comps = []
         for j, m in enumerate(members):
             if m:
-                p = int(peak[j])
                 ce, cn, sigma = contact_position(grid.detections, m, nav_sigma_m=self.fusion.nav_sigma_m)
+                p = (int(peak[j]) if j < n_reg
+                     else _cell_at(grid, iy, ix, l_order[l_bounds[j]:l_bounds[j + 1]], ce, cn))
                 comps.append(_Component(j, ce, cn, sigma, float(bel[p]), float(mn[p]), float(mth[p]), int(iy[p]),
                                         int(ix[p]), m))
         comps = self._merge_objects(grid, comps)
@@ -724,6 +738,8 @@ class ContactTracker:
         d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1)).tolist()
         r_order = np.argsort(reg, kind="stable")
         r_bounds = np.searchsorted(reg[r_order], np.arange(n_reg + 1)).tolist()
+        l_order = np.argsort(lab, kind="stable")
+        l_bounds = np.searchsorted(lab[l_order], np.arange(n_comp + 1))
         first = code[r_order[r_bounds[:-1]]].tolist() if n_reg else []  # each region's first cell
         comps = []
         for j in range(n_comp):
@@ -738,6 +754,8 @@ class ContactTracker:
             # bookkeeping but never published (_publish)
             ce, cn, sigma = (contact_position(grid.detections, dl, nav_sigma_m=self.fusion.nav_sigma_m) if dl
                              else (math.nan, math.nan, math.nan))
+            if j >= n_reg and dl:  # a split group beyond the first: its Bel at its own position
+                p = _cell_at(grid, iy, ix, l_order[l_bounds[j]:l_bounds[j + 1]], ce, cn)
             comps.append(_Component(key, ce, cn, sigma, float(bel[p]), float(mn[p]),
                                     float(mth[p]), int(iy[p]), int(ix[p]), dl))
         by_region: list[list[_Component]] = [[comps[j]] for j in range(n_reg)]

@@ -284,3 +284,41 @@ def test_incremental_update_joins_a_region_across_an_unchanged_chunk_border(fram
     got = [c.to_message() for c in inc.update(grid, 2.0)]
     assert got == [c.to_message() for c in full.update(grid, 2.0)]
     assert len(inc.live) == 1 and len(inc._regions) == 1
+
+
+@pytest.mark.parametrize("incremental", [True, False])
+def test_a_weaker_object_beside_a_stronger_one_reads_its_own_belief(frame, incremental):
+    """Two objects 4 m apart share one belief region (gates of 3 m); it splits into two
+    contacts. The weak one's cells border the strong one's and the strong gate's T mass
+    reaches them, so at its peak cell it read the strong one's Bel: seen on leg 1 only (leg 2
+    covered it and missed it) it was still published at the strong one's 0.99. Its Bel is
+    now the grid's at its own position: Dempster on its own cell."""
+    from .conftest import observe, track_geometry
+
+    fusion = FusionSettings(evidence="paper")
+    pd = np.full(700, 0.9)
+
+    def run(leg2_hits):
+        grid = EvidenceGrid(fusion, gate_m=3.0, detectors=("mf",))
+        tracker = ContactTracker(fusion, frame, gate_m=3.0, incremental=incremental)
+        for leg, hits in ((1, [(100, 400, 0.9), (100, 440, 0.85)]), (2, leg2_hits)):
+            g = track_geometry(frame, east0_m=0.0, north0_m=60.0, heading_deg=0.0, rows=300, cols=700, leg=leg)
+            grid.add_observation(observe(g, leg, 1000.0 * leg, {"mf": (None, pd, hits)}))
+            tracker.update(grid, 1000.0 * leg)
+        grid.close_all()
+        tracker.update(grid, 3000.0)
+        weak_en = (float(g.east_m[100] + g.ranges_m[440] * g.ue[100]), float(g.north_m[100] + g.ranges_m[440] * g.un[100]))
+        return grid, sorted(tracker.live.values(), key=lambda c: -c.bel), weak_en
+
+    # missed by leg 2: one contact, the strong one; where the weak one is, Bel is below report
+    grid, live, (we, wn) = run([(100, 400, 0.9)])
+    assert [c.detections for c in live] == [2] and live[0].bel > 0.98
+    want = 0.85 * (1 - 0.9) / (1 - 0.85 * 0.9)  # leg 1's T 0.85 against leg 2's miss at Pd 0.9
+    assert float(grid.masses_at(we, wn).m_t) == pytest.approx(want, rel=1e-6) and want < fusion.report_bel
+    # seen by both legs: two contacts, the weak one at its own cell's Bel, below the strong one's
+    grid, live, _ = run([(100, 400, 0.9), (100, 440, 0.85)])
+    assert [c.detections for c in live] == [2, 2]
+    strong, weak = live
+    assert np.hypot(strong.east_m - weak.east_m, strong.north_m - weak.north_m) == pytest.approx(4.0, abs=0.05)
+    assert weak.bel == pytest.approx(1 - 0.15 ** 2, rel=1e-6) and strong.bel == pytest.approx(1 - 0.1 ** 2, rel=1e-6)
+    assert weak.bel == float(grid.masses_at(weak.east_m, weak.north_m).m_t)

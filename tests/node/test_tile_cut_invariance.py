@@ -233,7 +233,7 @@ MISSION = """
 mission_legs = 2
 mission_leg_length_m = 60.0
 mission_swath_m = 30.0
-mission_targets = 5
+mission_targets = 8
 mission_tile_pings = 96
 mission_clutter_per_km2 = 1000.0
 """
