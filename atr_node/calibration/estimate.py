@@ -128,7 +128,9 @@ def cell_prior(calibration: CalibrationSettings, provenance: Mapping[str, Any]) 
 def look_tau(z_t: np.ndarray, fired_t: np.ndarray, look_pd: float) -> float:
     """The look's threshold z_tau: the largest z with ``P(fired and z >= z_tau | T) >= look_pd``
     over the covered injected targets (``z_t`` finite); -inf with ``look_pd = 0`` or when the
-    fired targets are fewer than that share (every fired look then detects).
+    fired targets are fewer than that share (every fired look then detects: a detector set
+    that misses more than ``1 - look_pd`` of the injected targets on its own, as a single
+    detector may, keeps every look it fired).
 
     A look whose detectors fired only weakly (a lone detector just over its threshold, as
     textured seabed makes them on every pass) is far more often seabed than target: counted as
@@ -140,7 +142,7 @@ def look_tau(z_t: np.ndarray, fired_t: np.ndarray, look_pd: float) -> float:
     if look_pd <= 0.0 or not covered.any():
         return -math.inf
     hits = np.sort(z[covered & np.asarray(fired_t, dtype=bool)])[::-1]  # strongest first
-    k = math.ceil(look_pd * int(covered.sum()))  # targets the threshold must keep
+    k = math.ceil(look_pd * int(covered.sum()) - 1e-9)  # targets the threshold must keep (as dobeck_threshold)
     if k < 1 or hits.size < k:
         return -math.inf
     return float(hits[k - 1])
@@ -176,18 +178,23 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
             # every fired response above a threshold below all of them, the others below it ...
             tau = float(fired_z.min()) - 1e-9 * max(1.0, abs(float(fired_z.min()))) if fired_z.size else 0.0
             below = tau - 1.0
-            # ... then the look's own threshold z_tau: a look whose z stays below it counts as a
-            # miss, and P(y) is measured with the same rule (look_tau)
-            tau = max(tau, look_tau(z_t, f_t, calibration.look_pd))
+            source = "look"  # every fired look detects
+            # ... unless the look's own threshold z_tau applies: a look whose z stays below it
+            # counts as a miss. The table keeps the largest float below z_tau, so the looks
+            # that detect (z > tau, the k-th target's z_tau included) are exactly the
+            # confidence curve's exceedances, and P(y) is measured with the same rule
+            z_tau = look_tau(z_t, f_t, calibration.look_pd)
+            if z_tau > tau:
+                tau, source = float(np.nextafter(z_tau, -np.inf)), "look_pd"
             x_t = np.where(f_t, z_t, np.where(np.isfinite(z_t), below, np.nan))
             x_n = np.where(f_n, z_n, np.where(np.isfinite(z_n), below, np.nan))
             conf = confidence_curve(x_t, x_n, tau, prior_target=prior_target,
                                     n_points=calibration.confidence_points, smoothing=calibration.smoothing)
-            hit_t = f_t & (z_t >= tau)
+            hit_t = f_t & (z_t > tau)
             det_t = np.where(np.isfinite(z_t), hit_t.astype(np.float64), np.nan)
             pyr = pd_curve(responses.target_range_m, det_t, 0.5, edges_m=edges_m, smoothing=calibration.smoothing)
             covered = np.isfinite(z_t)
             pd_tau = float(np.mean(hit_t[covered])) if covered.any() else math.nan
-            tables[_looks.subset_key(subset)] = DetectorPerformance(tau=tau, confidence=conf, pyr=pyr, tau_source="look",
+            tables[_looks.subset_key(subset)] = DetectorPerformance(tau=tau, confidence=conf, pyr=pyr, tau_source=source,
                                                              pd_at_tau=pd_tau)
     return _looks.LookModel(tails, tables, info, lrs)

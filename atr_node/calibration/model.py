@@ -50,7 +50,9 @@ class DetectorPerformance:
     """One detector's estimates at its threshold ``tau``.
 
     ``tau_source`` is ``"dobeck"`` (from the synthetic targets at the Pd target) or
-    ``"config"``; ``pd_at_tau`` the fraction of synthetic targets above tau.
+    ``"config"``; for a look table (SPEC 6.1) ``"look"`` (every fired look detects; tau is
+    below every fired calibration score) or ``"look_pd"`` (a look detects where its score z >
+    tau, ``calibration.look_pd``); ``pd_at_tau`` the fraction of synthetic targets detected.
     """
 
     tau: float

@@ -10,8 +10,8 @@ form several groups (each within the gate of its strongest detection) is split, 
 going to the nearest group. A contact's position comes from its detections
 (:func:`detection_position`: their confidence-weighted mean; ``sigma_m`` their spread plus
 ``nav_sigma_m`` in quadrature); ``bel``, ``pl`` and ``m_theta`` are those of the region's
-peak cell, and for a split group beyond the first (a weaker object beside a stronger one)
-those of the cell at its own position (:func:`_cell_at`).
+peak cell; in a region split into groups (objects a few metres apart), every group's are
+those of its cell nearest to its position (:func:`_cell_at`), and so are its legs.
 
 Extended objects (a wreck, ``detectors/objects.py``) come from the detect stage in pieces when
 they cross units' edges, one per unit, each at its own centre: components whose detections'
@@ -72,7 +72,8 @@ class _Component:
     mth: float
     iy: int
     ix: int
-    """Peak cell."""
+    """The cell its Bel(T), pl, m_theta and legs are read at: its peak cell, or for a group of a
+    split region the cell nearest its position (:func:`_cell_at`)."""
     dets: list[int]
     """Its detections (indices into ``grid.detections``, ascending)."""
     fields: dict | None = None
@@ -297,7 +298,7 @@ def _touch(a: tuple, b: tuple, tol_m: float) -> bool:
 
 
 def _legs(grid: EvidenceGrid, comp: _Component) -> tuple[int, ...]:
-    """Legs of a component: those at its peak cell, or at any of its members' (merged)."""
+    """Legs of a component: those at its cell (``iy``, ``ix``), or at any of its members' (merged)."""
     if not comp.members:
         return tuple(grid.legs_at(comp.iy, comp.ix))
     return tuple(sorted({leg for m in comp.members for leg in grid.legs_at(m.iy, m.ix)}))
@@ -350,14 +351,42 @@ def detection_position(detections: Sequence[DetectionRecord], idx: Sequence[int]
     return e, n, math.sqrt(0.5 * var + float(nav_sigma_m) ** 2)
 
 
-def _cell_at(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, cells: np.ndarray, ce: float, cn: float) -> int:
-    """The cell of ``cells`` (indices, in the extraction's order) nearest to (ce, cn); the first
-    on a tie. A split group beyond the first reads its Bel(T) there, not at its peak: its
-    cells border the stronger group's, whose gate reaches them with that group's T mass, and
-    at its peak it read the neighbour's Bel (a one-detection satellite 4 m from a rock seen on
-    three legs published the rock's 0.998)."""
+def _cell_at(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, cells: np.ndarray, region: np.ndarray, ce: float,
+             cn: float) -> int:
+    """The cell of ``cells`` (indices, in the extraction's order) nearest to (ce, cn), the first
+    on a tie; of ``region`` (its region's cells) when the group has none (each cell goes to the
+    nearest group's position, so a group squeezed between two others can get no cell).
+
+    Every group of a split region reads its Bel(T) there, not at its peak: a group's cells
+    border its neighbour's, whose gate reaches them with that group's T mass, so at its peak a
+    one-detection satellite 4 m from a rock seen on three legs read the rock's 0.998. It is the
+    cell nearest the position, not ``grid.masses_at(ce, cn)``: a position on a cell of another
+    group, or below ``withdraw_bel``, still reads one of its own. Groups closer than the gate
+    still share T mass there."""
+    if not cells.size:
+        cells = region
     e, n = grid.cell_centre(iy[cells], ix[cells])
     return int(cells[int(np.argmin((e - ce) ** 2 + (n - cn) ** 2))])
+
+
+def _own_cells(lab: np.ndarray, n_comp: int, reg: np.ndarray, n_reg: int, extras: list[tuple[int, int]]
+               ) -> list[tuple[np.ndarray, np.ndarray] | None] | None:
+    """Per component label of a split region, (its cells, its region's cells), in the
+    extraction's order (:func:`_cell_at`); None for a region that was not split, and None
+    overall when no region was (the common case costs nothing)."""
+    if not extras:
+        return None
+    split = sorted({r for r, _g in extras})
+    l_order = np.argsort(lab, kind="stable")
+    l_bounds = np.searchsorted(lab[l_order], np.arange(n_comp + 1))
+    r_order = np.argsort(reg, kind="stable")
+    r_bounds = np.searchsorted(reg[r_order], np.arange(n_reg + 1))
+    out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * n_comp
+    region_of = {r: r for r in split}
+    region_of.update({n_reg + i: r for i, (r, _g) in enumerate(extras)})
+    for j, r in region_of.items():
+        out[j] = (l_order[l_bounds[j]:l_bounds[j + 1]], r_order[r_bounds[r]:r_bounds[r + 1]])
+    return out
 
 
 def _peaks(bel: np.ndarray, lab: np.ndarray, n_comp: int) -> np.ndarray:
@@ -575,7 +604,8 @@ class ContactTracker:
             bel = mn = mth = np.zeros(0)
         n_reg, reg = label_cells(iy, ix)
         det_reg = self._detection_labels(grid, iy, ix, reg)
-        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg)
+        extras: list[tuple[int, int]] = []
+        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, extras=extras)
         peak = _peaks(bel, lab, n_comp)
         # detections of each component: one stable sort, not a scan of all detections per
         # component (same members, same order)
@@ -584,14 +614,12 @@ class ContactTracker:
         members = [d_order[d_bounds[j]:d_bounds[j + 1]].tolist() for j in range(n_comp)]
         # position from the detections behind a component (SPEC 7); one without any is never a
         # contact (SPEC 7)
-        l_order = np.argsort(lab, kind="stable")
-        l_bounds = np.searchsorted(lab[l_order], np.arange(n_comp + 1))
+        own = _own_cells(lab, n_comp, reg, n_reg, extras)
         comps = []
         for j, m in enumerate(members):
             if m:
                 ce, cn, sigma = contact_position(grid.detections, m, nav_sigma_m=self.fusion.nav_sigma_m)
-                p = (int(peak[j]) if j < n_reg
-                     else _cell_at(grid, iy, ix, l_order[l_bounds[j]:l_bounds[j + 1]], ce, cn))
+                p = int(peak[j]) if own is None or own[j] is None else _cell_at(grid, iy, ix, *own[j], ce, cn)
                 comps.append(_Component(j, ce, cn, sigma, float(bel[p]), float(mn[p]), float(mth[p]), int(iy[p]),
                                         int(ix[p]), m))
         comps = self._merge_objects(grid, comps)
@@ -738,8 +766,7 @@ class ContactTracker:
         d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1)).tolist()
         r_order = np.argsort(reg, kind="stable")
         r_bounds = np.searchsorted(reg[r_order], np.arange(n_reg + 1)).tolist()
-        l_order = np.argsort(lab, kind="stable")
-        l_bounds = np.searchsorted(lab[l_order], np.arange(n_comp + 1))
+        own = _own_cells(lab, n_comp, reg, n_reg, extras)
         first = code[r_order[r_bounds[:-1]]].tolist() if n_reg else []  # each region's first cell
         comps = []
         for j in range(n_comp):
@@ -754,8 +781,8 @@ class ContactTracker:
             # bookkeeping but never published (_publish)
             ce, cn, sigma = (contact_position(grid.detections, dl, nav_sigma_m=self.fusion.nav_sigma_m) if dl
                              else (math.nan, math.nan, math.nan))
-            if j >= n_reg and dl:  # a split group beyond the first: its Bel at its own position
-                p = _cell_at(grid, iy, ix, l_order[l_bounds[j]:l_bounds[j + 1]], ce, cn)
+            if dl and own is not None and own[j] is not None:  # a group of a split region: its own position
+                p = _cell_at(grid, iy, ix, *own[j], ce, cn)
             comps.append(_Component(key, ce, cn, sigma, float(bel[p]), float(mn[p]),
                                     float(mth[p]), int(iy[p]), int(ix[p]), dl))
         by_region: list[list[_Component]] = [[comps[j]] for j in range(n_reg)]
@@ -926,7 +953,7 @@ class ContactTracker:
         """Split belief regions that hold several distinct objects.
 
         A region is a union of association gates around detections, so two objects a few
-        metres apart share one. Its detections are grouped by single linkage within the gate;
+        metres apart share one. Its detections are grouped by leader clustering within the gate;
         each cell goes to the nearest group (by its confidence-weighted mean position), and
         each group is a contact. Returns (cell labels, number of contacts, detection labels).
 

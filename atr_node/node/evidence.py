@@ -90,7 +90,7 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
             for x in detections[d]:
                 joint = dict(x.joint) if x.joint is not None else {d: x.gamma}
                 z = model.look_score({k: np.float64(v) for k, v in joint.items()}, enabled)
-                if not z >= table.tau:
+                if table.tau_source == "look_pd" and not z > table.tau:
                     continue  # a look this weak is a miss (calibration.look_pd): no T mass here
                 c = float(np.clip(table.confidence_at(z), 0.0, 1.0))
                 dets.append(DetectionEvidence.from_detection(x, c, source=d))

@@ -67,12 +67,22 @@ def test_look_pd_is_the_share_of_targets_on_which_the_look_detected(rng, look_pd
         z = np.array([float(model.look_score({d: np.float64(resp.target[d][i]) for d in subset}, subset))
                       for i in range(resp.n_targets)])
         if look_pd > 0 and fired.mean() >= look_pd:
-            hits = np.sort(z[fired])[::-1]
-            k = math.ceil(look_pd * resp.n_targets)
-            assert table.tau == hits[k - 1]  # the k-th strongest fired target: look_pd kept ...
-            assert (fired & (z >= table.tau)).mean() >= look_pd
-            assert (fired & (z > table.tau)).mean() < look_pd  # ... and no higher threshold keeps it
-        fired &= z >= table.tau
+            assert table.tau_source == "look_pd"
+            kept = fired & (z > table.tau)
+            assert kept.mean() >= look_pd  # look_pd of the targets detect ...
+            z_tau = float(np.nextafter(table.tau, np.inf))  # ... and no higher threshold keeps them
+            assert (fired & (z > z_tau)).mean() < look_pd
+        else:  # the rule is off: every fired look detects
+            assert table.tau_source == "look" and (z[fired] > table.tau).all()
+        fired &= z > table.tau
+        # the confidence table's exceedances are exactly the detecting looks (targets and cells)
+        zn = np.array([float(model.look_score({d: np.float64(resp.nontarget[d][i]) for d in subset}, subset))
+                       for i in range(resp.nontarget[subset[0]].size)])
+        fired_n = np.zeros(zn.size, bool)
+        for d in subset:
+            fired_n |= resp.nontarget[d] > model.tau[d]
+        assert table.confidence.n_target_above == int(fired.sum())
+        assert table.confidence.n_nontarget_above == int((fired_n & (zn > table.tau)).sum())
         edges = table.pyr.edges_m
         for b in range(edges.size - 1):
             inb = (resp.target_range_m >= edges[b]) & (resp.target_range_m < edges[b + 1])

@@ -8,7 +8,7 @@ import pytest
 
 from atr_node.config import FusionSettings
 from atr_node.fusion import Contact, ContactTracker, EvidenceGrid, and_contacts, or_contacts
-from atr_node.fusion.contacts import detection_position, label_cells, label_graph
+from atr_node.fusion.contacts import label_cells, label_graph
 from atr_node.fusion.grid import DetectionRecord
 
 from .conftest import DETS, TARGETS, mission_observations
@@ -286,39 +286,73 @@ def test_incremental_update_joins_a_region_across_an_unchanged_chunk_border(fram
     assert len(inc.live) == 1 and len(inc._regions) == 1
 
 
-@pytest.mark.parametrize("incremental", [True, False])
-def test_a_weaker_object_beside_a_stronger_one_reads_its_own_belief(frame, incremental):
-    """Two objects 4 m apart share one belief region (gates of 3 m); it splits into two
-    contacts. The weak one's cells border the strong one's and the strong gate's T mass
-    reaches them, so at its peak cell it read the strong one's Bel: seen on leg 1 only (leg 2
-    covered it and missed it) it was still published at the strong one's 0.99. Its Bel is
-    now the grid's at its own position: Dempster on its own cell."""
+def _two_legs(frame, leg_hits, incremental, fusion=None):
+    """Legs 1 and 2 over the same ground (one geometry), MF only, Pd 0.9 everywhere; the
+    tracker's live contacts (strongest first) and the grid."""
     from .conftest import observe, track_geometry
 
-    fusion = FusionSettings(evidence="paper")
-    pd = np.full(700, 0.9)
+    fusion = fusion or FusionSettings(evidence="paper")
+    grid = EvidenceGrid(fusion, gate_m=3.0, detectors=("mf",))
+    tracker = ContactTracker(fusion, frame, gate_m=3.0, incremental=incremental)
+    for leg, hits in leg_hits:
+        g = track_geometry(frame, east0_m=0.0, north0_m=60.0, heading_deg=0.0, rows=300, cols=700, leg=leg)
+        grid.add_observation(observe(g, leg, 1000.0 * leg, {"mf": (None, np.full(700, 0.9), hits)}))
+        tracker.update(grid, 1000.0 * leg)
+    grid.close_all()
+    tracker.update(grid, 3000.0)
+    return sorted(tracker.live.values(), key=lambda c: -c.bel), grid
 
-    def run(leg2_hits):
-        grid = EvidenceGrid(fusion, gate_m=3.0, detectors=("mf",))
-        tracker = ContactTracker(fusion, frame, gate_m=3.0, incremental=incremental)
-        for leg, hits in ((1, [(100, 400, 0.9), (100, 440, 0.85)]), (2, leg2_hits)):
-            g = track_geometry(frame, east0_m=0.0, north0_m=60.0, heading_deg=0.0, rows=300, cols=700, leg=leg)
-            grid.add_observation(observe(g, leg, 1000.0 * leg, {"mf": (None, pd, hits)}))
-            tracker.update(grid, 1000.0 * leg)
-        grid.close_all()
-        tracker.update(grid, 3000.0)
-        weak_en = (float(g.east_m[100] + g.ranges_m[440] * g.ue[100]), float(g.north_m[100] + g.ranges_m[440] * g.un[100]))
-        return grid, sorted(tracker.live.values(), key=lambda c: -c.bel), weak_en
 
-    # missed by leg 2: one contact, the strong one; where the weak one is, Bel is below report
-    grid, live, (we, wn) = run([(100, 400, 0.9)])
-    assert [c.detections for c in live] == [2] and live[0].bel > 0.98
-    want = 0.85 * (1 - 0.9) / (1 - 0.85 * 0.9)  # leg 1's T 0.85 against leg 2's miss at Pd 0.9
-    assert float(grid.masses_at(we, wn).m_t) == pytest.approx(want, rel=1e-6) and want < fusion.report_bel
-    # seen by both legs: two contacts, the weak one at its own cell's Bel, below the strong one's
-    grid, live, _ = run([(100, 400, 0.9), (100, 440, 0.85)])
+def _own(c1: float, c2: float | None) -> float:
+    """Bel on an object's own cell: leg 1's T mass c1; leg 2's c2, or its miss at Pd 0.9."""
+    if c2 is None:
+        return c1 * (1 - 0.9) / (1 - c1 * 0.9)
+    return 1 - (1 - c1) * (1 - c2)
+
+
+@pytest.mark.parametrize("incremental", [True, False])
+def test_a_weaker_object_beside_a_stronger_one_reads_its_own_belief(frame, incremental):
+    """Two objects 4 m apart share one belief region (gates of 3 m); it splits into two groups.
+    The one-leg object's cells border the other's, whose gate's T mass reaches them, so at its
+    peak cell it read the other's Bel: seen on leg 1 only (leg 2 covered it and missed it) it
+    was published at the other's 0.99. Each group now reads its Bel at its own position."""
+    # the object at column 440 seen by leg 1 only, at 0.9: reported after leg 1, then Bel 0.47
+    # on its own cell, between withdraw_bel and report_bel: still live (hysteresis), at 0.47
+    live, grid = _two_legs(frame, [(1, [(100, 400, 0.9), (100, 440, 0.9)]), (2, [(100, 400, 0.9)])], incremental)
+    assert FusionSettings().withdraw_bel < _own(0.9, None) < FusionSettings().report_bel
+    assert [c.detections for c in live] == [2, 1]
+    assert live[0].bel == pytest.approx(_own(0.9, 0.9), rel=1e-9)
+    assert live[1].bel == pytest.approx(_own(0.9, None), rel=1e-9)  # not the other's 0.99
+    # seen by both legs: two contacts, each at its own cell's Bel
+    live, grid = _two_legs(frame, [(1, [(100, 400, 0.9), (100, 440, 0.85)]), (2, [(100, 400, 0.9), (100, 440, 0.85)])],
+                           incremental)
     assert [c.detections for c in live] == [2, 2]
     strong, weak = live
     assert np.hypot(strong.east_m - weak.east_m, strong.north_m - weak.north_m) == pytest.approx(4.0, abs=0.05)
-    assert weak.bel == pytest.approx(1 - 0.15 ** 2, rel=1e-6) and strong.bel == pytest.approx(1 - 0.1 ** 2, rel=1e-6)
+    assert weak.bel == pytest.approx(_own(0.85, 0.85), rel=1e-9) and strong.bel == pytest.approx(_own(0.9, 0.9), rel=1e-9)
     assert weak.bel == float(grid.masses_at(weak.east_m, weak.north_m).m_t)
+
+
+@pytest.mark.parametrize("incremental", [True, False])
+def test_the_leading_group_reads_its_own_belief_too(frame, incremental):
+    """The group of the most confident detection leads the split; it is not the one with the
+    highest Bel. A one-leg object at 0.95 beside a rock seen on both legs at 0.8: the object
+    leads, and at its peak it read the rock's Bel, ranking above the rock."""
+    live, _ = _two_legs(frame, [(1, [(100, 400, 0.8), (100, 440, 0.95)]), (2, [(100, 400, 0.8)])], incremental)
+    rock = [c for c in live if c.detections == 2]
+    assert len(rock) == 1 and rock[0].bel == pytest.approx(_own(0.8, 0.8), rel=1e-9)
+    one_leg = [c for c in live if c.detections == 1]
+    assert all(c.bel == pytest.approx(_own(0.95, None), rel=1e-9) for c in one_leg)
+    assert all(c.bel < rock[0].bel for c in one_leg)
+
+
+@pytest.mark.parametrize("incremental", [True, False])
+def test_a_group_without_cells_reads_its_region(frame, incremental):
+    """Cells go to the nearest group's position, so a group squeezed between two others can
+    get none: it reads the nearest of its region's cells (it once raised on an empty argmin)."""
+    a = [(100, 369, 0.9)] + [(100, 398, 0.9)] * 10
+    c = [(100, 431, 0.9)] + [(100, 402, 0.9)] * 10
+    live, grid = _two_legs(frame, [(1, a + c + [(100, 400, 0.5)]), (2, a + c + [(100, 400, 0.5)])], incremental)
+    assert live and all(0.0 <= x.bel <= 1.0 for x in live)
+    for x in live:
+        assert x.bel == pytest.approx(float(grid.masses_at(x.east_m, x.north_m).m_t), abs=0.05)

@@ -429,3 +429,20 @@ def test_a_bright_target_does_not_make_its_range_a_band():
     om = object_map(img)
     assert (om.owner == -1).sum() == 0
     assert om.owner_at(np.array([row]), np.array([col]))[0] == 0
+
+
+@pytest.mark.parametrize("width_m, gain", [(0.15, 6.0), (0.3, 4.0), (0.6, 3.0), (0.9, 2.5)])
+def test_a_narrow_band_that_stays_put_is_a_band(width_m, gain):
+    """b(j) (here the column mean) flattens a band at constant range in I_n, so it shows only
+    in the intensities. Their cell means are smoothed along track only: smoothed across range
+    as well, a band a few cells wide lost its level and was missed."""
+    rng = np.random.default_rng(8)
+    img = rng.exponential(1.0, (256, COLS)).astype(np.float32)
+    c0 = 250
+    c1 = c0 + round(width_m / DR)
+    img[:, c0:c1] *= gain
+    om = object_map(img)
+    rows = np.arange(10, 250, 20)
+    assert (om.owner_at(np.repeat(rows, c1 - c0), np.tile(np.arange(c0, c1), rows.size)) == -1).all()
+    assert (om.owner[:, : c0 // om.block[1] - 2] == 0).all()  # and nothing else is
+

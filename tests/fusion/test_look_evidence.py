@@ -155,3 +155,16 @@ def test_a_look_that_fired_weakly_is_a_miss(frame, model_95):
     b_mixed = float(grid2.masses_at(*POINT).m_t)
     b_miss, _ = bel(frame, model_95, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)], "look")
     assert b_mixed == pytest.approx(b_miss, rel=1e-12) and b_mixed < two_strong
+
+
+def test_without_the_look_rule_every_fired_look_detects(frame, model):
+    """A table made with look_pd 0 (or before the rule: ``tau_source = "look"``) keeps every
+    look on which a detector fired, even one scoring below anything the calibration saw."""
+    table = model.look(DETS)
+    assert table.tau_source == "look"
+    tau = model.tau
+    weak = {d: (tau[d] + 1e-3 if d == "lac" else -50.0) for d in DETS}
+    z = model.look_score({d: np.float64(v) for d, v in weak.items()}, DETS)
+    assert z < table.tau  # below every fired calibration score
+    b, grid = bel(frame, model, [(1, 0.0, 0.0, True)], "look", gamma=weak)
+    assert len(grid.detections) == 1 and b == pytest.approx(float(table.confidence_at(z)), rel=1e-12) and b > 0
