@@ -63,3 +63,39 @@ def test_quality_benchmark_scores_a_real_recording_for_every_method(real_data, t
 def test_quality_benchmark_usage_errors(capsys):
     assert bench_quality.main(["--seabeds", "mud"]) == 2
     assert "unknown seabed" in capsys.readouterr().err
+
+
+def test_covering_legs_is_the_node_s_coverage_at_pd_0_8():
+    """Issue 17 judges the one-leg objects that another look covered at Pd >= 0.8: a leg counts
+    where its beam passed over the point on its side, a detector scored the pixel there and
+    the look's P(y) at that range is at least 0.8."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from atr_node.calibration.model import PerformanceModel
+    from atr_node.geo import MissionFrame, tile_geometry
+    from atr_node.records.tile import Tile, TileNav
+
+    frame = MissionFrame("ltp", 43.0, 7.0)
+    rows, cols, dr = 300, 600, 0.1
+    e, n = np.zeros(rows), np.arange(rows) * 0.1  # heading north from the origin
+    lat, lon = frame.to_latlon(e, n)
+    tile = Tile("t", 3, "stbd", 0, np.ones((rows, cols), np.float32), "intensity", 0.0, dr, 0.1, False,
+                1.7e9 + 0.1 * np.arange(rows), nav=TileNav(lat, lon, np.zeros(rows), np.full(rows, 8.0)))
+    geom = tile_geometry(tile, frame)
+    covered = np.ones((rows, cols), bool)
+    covered[:, :60] = False  # the nadir gap: 0-6 m
+    model = PerformanceModel.shipped()
+    dets = ("mf", "lac", "smf", "z")
+    unit = SimpleNamespace(leg=3, geometry=geom, ranges_m=tile.ranges_m, model=model,
+                           result=SimpleNamespace(covered=lambda d: covered))
+    run = SimpleNamespace(units=[unit])
+    pd_30 = float(model.look(dets).pd_at(30.0))
+    assert pd_30 >= 0.8
+    assert bench_quality.covering_legs(run, (30.0, 15.0), dets) == {3}  # starboard, 30 m, ping 150
+    assert bench_quality.covering_legs(run, (-30.0, 15.0), dets) == set()  # the other side
+    assert bench_quality.covering_legs(run, (3.0, 15.0), dets) == set()  # in the nadir gap
+    assert bench_quality.covering_legs(run, (30.0, 45.0), dets) == set()  # past the last ping
+    assert bench_quality.covering_legs(run, (70.0, 15.0), dets) == set()  # beyond the swath
+    assert bench_quality.covering_legs(run, (30.0, 15.0), dets, pd_min=pd_30 + 1e-9) == set()

@@ -14,14 +14,16 @@ as the node does it); every method then works on the same detections:
 Per scene: Pd max; false alarms at Pd 0.8, 0.9 and at the max; the operating point (the
 contacts the node publishes, Bel >= report_bel); the share of contacts at Bel >= 0.999; a
 reliability table (Bel bin -> share of contacts that are targets); one-leg objects above
-report_bel; targets seen on >= 2 looks above report_bel; contacts without a detection.
+report_bel, all of them and those another look covered at Pd >= 0.8 as the node saw it
+(:func:`covering_legs`; the issue's criterion counts these); targets seen on >= 2 looks above
+report_bel; contacts without a detection.
 
 Then the shared real side-scan recordings (``--recordings``; they have no ground truth): per
 method the contacts it publishes, the objects read by eye it finds (the marks of
 ``tools/figures/real_recordings.py``) and the contacts on the Iver2 wreck; for DS the share at
 Bel >= 0.999 and the contacts without a detection.
 
-    python tools/bench/quality.py                      # 3 seabeds x 3 seeds, ~10 min
+    python tools/bench/quality.py                      # 3 seabeds x 3 seeds, ~4 min
     python tools/bench/quality.py --quick              # 1 small scene (smoke)
     python tools/bench/quality.py --json out.json --out /tmp/quality
     atr-node bench quality
@@ -87,6 +89,40 @@ def _near(points: np.ndarray, others: np.ndarray, radius_m: float = 3.0) -> np.n
                                  distance_upper_bound=radius_m)[0] <= radius_m
 
 
+ONE_LEG_PD = 0.8
+"""Issue 17: the one-leg objects judged are those another look covered at Pd >= this."""
+
+
+def covering_legs(run, point_en, detectors, *, pd_min: float = ONE_LEG_PD, max_off_m: float = 1.0) -> set[int]:
+    """Legs whose look covered ``point_en`` (east, north in ``run.frame``) with its look P(y) >=
+    ``pd_min``, as the node saw it: a unit of the leg has a ping whose beam passes within
+    ``max_off_m`` of the point on the unit's side, the point lies in the swath, a detector
+    covered the pixel there (its score is not NaN: not in the nadir gap, the first-return band
+    or a dropped ping) and the unit's model gives the look ``Pd(r) >= pd_min`` at that range
+    (the per-detector maximum for a model without look tables)."""
+    pe, pn = (float(v) for v in point_en)
+    legs: set[int] = set()
+    for u in run.units:
+        g = u.geometry
+        de, dn = pe - g.east_m, pn - g.north_m
+        across = de * g.ue + dn * g.un
+        off = np.hypot(de - across * g.ue, dn - across * g.un)
+        i = int(np.argmin(off))
+        r = float(across[i])
+        ranges = np.asarray(u.ranges_m, dtype=np.float64)
+        if off[i] > max_off_m or not ranges[0] <= r <= ranges[-1]:
+            continue
+        j = int(np.argmin(np.abs(ranges - r)))
+        if not any(u.result.covered(d)[i, j] for d in detectors):
+            continue
+        table = u.model.look(detectors)
+        pd = (float(table.pd_at(r)) if table is not None
+              else max(float(u.model.pd(d, r)) for d in detectors))
+        if pd >= pd_min:
+            legs.add(u.leg)
+    return legs
+
+
 def _en(contacts) -> np.ndarray:
     return np.array([(c.east_m, c.north_m) for c in contacts], dtype=np.float64).reshape(-1, 2)
 
@@ -144,7 +180,11 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
     singles = {d: comp.single(d) for d in en}
     best3 = comp.ranking(singles)[:3]
     out: dict = {"scene": scene_dir.name, "targets": len(truth), "methods": {}}
-    one_leg, _ = _read_points(scene_dir / "one_leg.csv", run.frame)
+    one_leg, one_leg_rows = _read_points(scene_dir / "one_leg.csv", run.frame)
+    # issue 17 judges the one-leg objects that another look covered at Pd >= 0.8: the
+    # generator's covered_by_legs counts 5-60 m, where the node may see nothing (first return)
+    judged = np.array([bool(covering_legs(run, p, en) - {int(r["shown_on_leg"])}) for p, r in zip(one_leg, one_leg_rows)],
+                      dtype=bool).reshape(-1)
     t_en, t_rows = _read_points(scene_dir / "truth.csv", run.frame)
     multi = np.array([int(r.get("looks") or 0) >= 2 for r in t_rows], dtype=bool)
     for name, kw in DS_METHODS:
@@ -160,6 +200,8 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
                     "reliability": _reliability(contacts, comp.truth_en),
                     "one_leg_objects": int(len(one_leg)),
                     "one_leg_above_report": int(_near(one_leg, _en(at_node)).sum()),
+                    "one_leg_covered_objects": int(judged.sum()),
+                    "one_leg_covered_above_report": int((_near(one_leg, _en(at_node)) & judged).sum()),
                     "multi_look_targets": int(multi.sum()),
                     "multi_look_above_report": int(_near(t_en[multi], _en(at_node)).sum()),
                     "no_detection": int(sum(1 for c in node_like_contacts(run, grid) if c.detections == 0))})
@@ -280,8 +322,9 @@ def checks(scene: dict, settings) -> dict:
     out["pd_max_095_where_or_does"] = bool(or_["op_pd"] < 0.95 or ds["pd_max"] >= 0.95)
     out["op_within_2x_roc"] = bool(ds["op_fa"] <= 2 * ds["roc_fa_at_op_pd"] or ds["op_fa"] <= 2)
     out["no_contact_without_detection"] = ds["no_detection"] == 0
-    n1 = ds["one_leg_objects"]
-    out["one_leg_below_report_95pct"] = bool(n1 == 0 or (n1 - ds["one_leg_above_report"]) / n1 >= 0.95)
+    n1 = ds.get("one_leg_covered_objects", ds["one_leg_objects"])  # those another look covered at Pd >= 0.8
+    a1 = ds.get("one_leg_covered_above_report", ds["one_leg_above_report"])
+    out["one_leg_below_report_95pct"] = bool(n1 == 0 or (n1 - a1) / n1 >= 0.95)
     nm = ds["multi_look_targets"]
     out["multi_look_above_report_95pct"] = bool(nm == 0 or ds["multi_look_above_report"] / nm >= 0.95)
     rel = [r["targets"] for r in ds["reliability"] if r["contacts"] >= 3]
@@ -307,7 +350,8 @@ def markdown(results: list[dict]) -> str:
             def g(k):
                 v = f.get(k, "")
                 return "-" if v == "" else ("inf" if isinstance(v, float) and math.isinf(v) else f"{v:g}" if isinstance(v, float) else str(v))
-            ol = f"{f['one_leg_above_report']}/{f['one_leg_objects']}" if "one_leg_objects" in f else ""
+            ol = (f"{f['one_leg_above_report']}/{f['one_leg_objects']} (covered at Pd 0.8: "
+                  f"{f['one_leg_covered_above_report']}/{f['one_leg_covered_objects']})" if "one_leg_objects" in f else "")
             ml = f"{f['multi_look_above_report']}/{f['multi_look_targets']}" if "multi_look_targets" in f else ""
             lines.append(f"| {r['scene']} | {name} | {g('pd_max')} | {g('fa_at_0.8')} | {g('fa_at_0.9')} | {g('fa_at_max')} "
                          f"| {g('op_pd')} | {g('op_fa')} | {g('share_bel_999')} | {ol} | {ml} | {g('no_detection')} |")
