@@ -293,11 +293,25 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
                                              m_theta=0.1, looks=1, detections=1, detectors=["smf"], legs=[0],
                                              seq=seq))
     joined = threading.Event()
+    follower: list[NodeFollower] = []
+
+    def until(done) -> None:  # a wait for an event; the deadline is a hang guard only
+        deadline = time.monotonic() + WAIT_S
+        while not done() and time.monotonic() < deadline:
+            time.sleep(0.005)
 
     def node():  # as NodeService._emit: the view, then the PUB socket
         for m in messages:
             if m["seq"] == 300:
-                joined.wait(WAIT_S)  # some history before the follower exists (a hang guard only)
+                joined.wait(WAIT_S)  # some history before the follower exists
+                # heartbeats until the follower's subscription is up (its first message asks
+                # for the snapshot), so the stream goes on while the snapshot is served: the
+                # race under test, however loaded the machine
+                until(lambda: pub.heartbeat(wire.heartbeat_message(
+                    t=time.time(), uptime_s=1.0, tiles_in=0, tiles_done=0, tiles_dropped=0, tiles_rejected=0,
+                    queue_depth=0, p50_ms=0.0, p99_ms=0.0, mode="nominal")) or follower[0].stats.heartbeats > 0)
+            if m["seq"] == 1500:  # the snapshot is served before the last message, on any machine
+                until(lambda: follower[0].stats.snapshot == "ok")
             view.published(m)
             pub.contact(m)
             time.sleep(0.0005)
@@ -306,9 +320,9 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
     t.start()
     applied: list[dict] = []
     try:
-        while view.snapshot()[0] < 299:
-            time.sleep(0.01)
+        until(lambda: view.snapshot()[0] >= 299)
         fol = NodeFollower(pub.endpoint, snapshot=srv.endpoint, on_contact=applied.append)
+        follower.append(fol)
         joined.set()
         assert follow_until(fol, lambda: bool(applied) and applied[-1]["seq"] == 1500)
         t.join()
