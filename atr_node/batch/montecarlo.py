@@ -10,10 +10,9 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
-import numpy as np
 
 from ..calibration.responses import (CalibrationImage, Responses, _room_for_targets, _settings_provenance,
-                                     collect_image)
+                                     collect_one)
 from ..errors import AtrError
 from .engine import Engine, Progress, TaskOutcome
 
@@ -21,9 +20,9 @@ from .engine import Engine, Progress, TaskOutcome
 def image_responses(image: CalibrationImage, settings: Any, iterations: int, targets_per_image: int, seed: int,
                     k: int, pooled: int) -> Responses:
     """Responses of image ``k`` of ``pooled`` usable images (one task), as ``collect_parts``
-    collects it (the early stop at convergence reads ``pooled``)."""
-    return collect_image(image, settings=settings, iterations=iterations, targets_per_image=targets_per_image,
-                         rng=np.random.default_rng([seed, k]), pooled=pooled)
+    collects it (:func:`~atr_node.calibration.responses.collect_one`)."""
+    return collect_one(image, k, pooled, settings=settings, iterations=iterations,
+                       targets_per_image=targets_per_image, seed=seed)
 
 
 def run_calibration(images: Sequence[CalibrationImage], settings: Any, engine: Engine, *, iterations: int,

@@ -276,6 +276,17 @@ def looks_to_dict(looks: LookModel, detector_dict) -> dict[str, Any]:
                {"lr": {d: {"gamma": t.gamma.tolist(), "l": t.l.tolist()} for d, t in looks.lrs.items()}})}
 
 
+def _knots(t: Any, name: str) -> tuple[np.ndarray, np.ndarray, bool]:
+    """``t["gamma"]`` and ``t[name]`` of a table in a model file as float64 arrays, and whether
+    they are knots: 1-D, the same length >= 2, finite, gamma increasing, the values
+    non-decreasing. Raises what ``np.asarray`` or the lookups raise on a malformed table."""
+    g = np.asarray(t["gamma"], dtype=np.float64)
+    v = np.asarray(t[name], dtype=np.float64)
+    ok = (g.ndim == 1 and g.size >= 2 and v.shape == g.shape and bool(np.all(np.isfinite(g)))
+          and bool(np.all(np.isfinite(v))) and not np.any(np.diff(g) <= 0) and not np.any(np.diff(v) < 0))
+    return g, v, ok
+
+
 def looks_from_dict(raw: Any, where: str, detector_from) -> LookModel:
     """Read and check the ``looks`` section (errors name the file and key)."""
     from ..errors import ModelFileError
@@ -291,15 +302,13 @@ def looks_from_dict(raw: Any, where: str, detector_from) -> LookModel:
     tails = {}
     for d, t in tails_raw.items():
         try:
-            g = np.asarray(t["gamma"], dtype=np.float64)
-            u = np.asarray(t["u"], dtype=np.float64)
+            g, u, ok = _knots(t, "u")
             slope = float(t.get("slope", 0.0))
         except (TypeError, ValueError, KeyError, AttributeError):
             raise err(f"tails.{d}", "needs lists of numbers 'gamma' and 'u' and a number 'slope'") from None
         if not (math.isfinite(slope) and slope >= 0.0):
             raise err(f"tails.{d}.slope", f"must be finite and >= 0, got {slope!r}")
-        if (g.ndim != 1 or g.size < 2 or u.shape != g.shape or not np.all(np.isfinite(g)) or not np.all(np.isfinite(u))
-                or np.any(np.diff(g) <= 0) or np.any(np.diff(u) < 0) or np.any(u < 0)):
+        if not ok or np.any(u < 0):
             raise err(f"tails.{d}", "gamma must be increasing and u finite, >= 0 and non-decreasing, same length >= 2")
         tails[d] = TailTable(g, u, slope)
     lrs = None
@@ -309,12 +318,10 @@ def looks_from_dict(raw: Any, where: str, detector_from) -> LookModel:
         lrs = {}
         for d, t in raw["lr"].items():
             try:
-                g = np.asarray(t["gamma"], dtype=np.float64)
-                lv = np.asarray(t["l"], dtype=np.float64)
+                g, lv, ok = _knots(t, "l")
             except (TypeError, ValueError, KeyError, AttributeError):
                 raise err(f"lr.{d}", "needs lists of numbers 'gamma' and 'l'") from None
-            if (g.ndim != 1 or g.size < 2 or lv.shape != g.shape or not np.all(np.isfinite(g))
-                    or not np.all(np.isfinite(lv)) or np.any(np.diff(g) <= 0) or np.any(np.diff(lv) < 0)):
+            if not ok:
                 raise err(f"lr.{d}", "gamma must be increasing and l finite and non-decreasing, same length >= 2")
             if d not in tails:
                 raise err(f"lr.{d}", "a detector without a tail table")

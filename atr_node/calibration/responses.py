@@ -419,10 +419,19 @@ def collect_parts(usable: Sequence[CalibrationImage], *, settings: Any, iteratio
     image k drawing from the random stream ``(seed, k)``: any split of the images between
     processes gives the parts one process gives. ``progress()`` after each iteration."""
     ks = range(len(usable)) if which is None else which
-    return {k: collect_image(usable[k], settings=settings, iterations=iterations, targets_per_image=targets_per_image,
-                             rng=np.random.default_rng([seed, k]), enabled=enabled, progress=progress,
-                             pooled=len(usable))
+    return {k: collect_one(usable[k], k, len(usable), settings=settings, iterations=iterations,
+                           targets_per_image=targets_per_image, seed=seed, enabled=enabled, progress=progress)
             for k in ks}
+
+
+def collect_one(image: CalibrationImage, k: int, n_usable: int, *, settings: Any, iterations: int,
+                targets_per_image: int, seed: int, enabled: Sequence[str] | None = None,
+                progress: Callable[[], None] | None = None) -> Responses:
+    """The responses of usable image ``k`` of ``n_usable``: its random stream ``(seed, k)``, and
+    the early stop at convergence reading the pooled count (what every caller must pass alike:
+    :func:`collect_parts`, the batch Monte Carlo's tasks)."""
+    return collect_image(image, settings=settings, iterations=iterations, targets_per_image=targets_per_image,
+                         rng=np.random.default_rng([seed, k]), enabled=enabled, progress=progress, pooled=n_usable)
 
 
 def pool_parts(parts: Mapping[int, Responses], *, n_usable: int, skipped: Sequence[str], settings: Any,

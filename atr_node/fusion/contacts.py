@@ -369,26 +369,6 @@ def _cell_at(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, cells: np.ndarr
     return int(cells[int(np.argmin((e - ce) ** 2 + (n - cn) ** 2))])
 
 
-def _own_cells(lab: np.ndarray, n_comp: int, reg: np.ndarray, n_reg: int, extras: list[tuple[int, int]]
-               ) -> list[tuple[np.ndarray, np.ndarray] | None] | None:
-    """Per component label of a split region, (its cells, its region's cells), in the
-    extraction's order (:func:`_cell_at`); None for a region that was not split, and None
-    overall when no region was (the common case costs nothing)."""
-    if not extras:
-        return None
-    split = sorted({r for r, _g in extras})
-    l_order = np.argsort(lab, kind="stable")
-    l_bounds = np.searchsorted(lab[l_order], np.arange(n_comp + 1))
-    r_order = np.argsort(reg, kind="stable")
-    r_bounds = np.searchsorted(reg[r_order], np.arange(n_reg + 1))
-    out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * n_comp
-    region_of = {r: r for r in split}
-    region_of.update({n_reg + i: r for i, (r, _g) in enumerate(extras)})
-    for j, r in region_of.items():
-        out[j] = (l_order[l_bounds[j]:l_bounds[j + 1]], r_order[r_bounds[r]:r_bounds[r + 1]])
-    return out
-
-
 def _peaks(bel: np.ndarray, lab: np.ndarray, n_comp: int) -> np.ndarray:
     """Per component label, its peak cell: index of its highest Bel(T), the last such cell on
     a tie (the position comes from the detections, :func:`detection_position`)."""
@@ -604,8 +584,8 @@ class ContactTracker:
             bel = mn = mth = np.zeros(0)
         n_reg, reg = label_cells(iy, ix)
         det_reg = self._detection_labels(grid, iy, ix, reg)
-        extras: list[tuple[int, int]] = []
-        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, extras=extras)
+        own: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, own=own)
         peak = _peaks(bel, lab, n_comp)
         # detections of each component: one stable sort, not a scan of all detections per
         # component (same members, same order)
@@ -614,12 +594,11 @@ class ContactTracker:
         members = [d_order[d_bounds[j]:d_bounds[j + 1]].tolist() for j in range(n_comp)]
         # position from the detections behind a component (SPEC 7); one without any is never a
         # contact (SPEC 7)
-        own = _own_cells(lab, n_comp, reg, n_reg, extras)
         comps = []
         for j, m in enumerate(members):
             if m:
                 ce, cn, sigma = contact_position(grid.detections, m, nav_sigma_m=self.fusion.nav_sigma_m)
-                p = int(peak[j]) if own is None or own[j] is None else _cell_at(grid, iy, ix, *own[j], ce, cn)
+                p = _cell_at(grid, iy, ix, *own[j], ce, cn) if j in own else int(peak[j])
                 comps.append(_Component(j, ce, cn, sigma, float(bel[p]), float(mn[p]), float(mth[p]), int(iy[p]),
                                         int(ix[p]), m))
         comps = self._merge_objects(grid, comps)
@@ -758,7 +737,8 @@ class ContactTracker:
             det_reg = np.where(hit, reg[o[pos]], -1)
             det_idx, det_reg = det_idx[hit], det_reg[hit]
         extras: list[tuple[int, int]] = []
-        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, det_idx, extras)
+        own: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, det_idx, extras, own)
         # the full extraction's peaks on a subset of its cells (each component's cells in the
         # same order: the same peaks)
         peak = _peaks(bel, lab, n_comp)
@@ -766,7 +746,6 @@ class ContactTracker:
         d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1)).tolist()
         r_order = np.argsort(reg, kind="stable")
         r_bounds = np.searchsorted(reg[r_order], np.arange(n_reg + 1)).tolist()
-        own = _own_cells(lab, n_comp, reg, n_reg, extras)
         first = code[r_order[r_bounds[:-1]]].tolist() if n_reg else []  # each region's first cell
         comps = []
         for j in range(n_comp):
@@ -781,7 +760,7 @@ class ContactTracker:
             # bookkeeping but never published (_publish)
             ce, cn, sigma = (contact_position(grid.detections, dl, nav_sigma_m=self.fusion.nav_sigma_m) if dl
                              else (math.nan, math.nan, math.nan))
-            if dl and own is not None and own[j] is not None:  # a group of a split region: its own position
+            if dl and j in own:  # a group of a split region: its own position
                 p = _cell_at(grid, iy, ix, *own[j], ce, cn)
             comps.append(_Component(key, ce, cn, sigma, float(bel[p]), float(mn[p]),
                                     float(mth[p]), int(iy[p]), int(ix[p]), dl))
@@ -949,7 +928,8 @@ class ContactTracker:
 
     def _split(self, grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, reg: np.ndarray, n_reg: int,
                det_reg: np.ndarray, det_idx: np.ndarray | None = None,
-               extras: list[tuple[int, int]] | None = None) -> tuple[np.ndarray, int, np.ndarray]:
+               extras: list[tuple[int, int]] | None = None,
+               own: dict[int, tuple[np.ndarray, np.ndarray]] | None = None) -> tuple[np.ndarray, int, np.ndarray]:
         """Split belief regions that hold several distinct objects.
 
         A region is a union of association gates around detections, so two objects a few
@@ -958,7 +938,9 @@ class ContactTracker:
         each group is a contact. Returns (cell labels, number of contacts, detection labels).
 
         ``det_reg`` labels the grid's detections ``det_idx`` (ascending; None: all of them).
-        ``extras``, if given, receives (region, group) of each label beyond ``n_reg``, in order.
+        ``extras``, if given, receives (region, group) of each label beyond ``n_reg``, in order;
+        ``own``, if given, maps every label of a split region to (its cells, its region's cells),
+        ascending (what :func:`_cell_at` reads).
         """
         lab = reg.copy()
         det_lab = det_reg.copy()
@@ -1002,6 +984,9 @@ class ContactTracker:
             n_comp += ng - 1
             if extras is not None:
                 extras.extend((j, k) for k in range(1, ng))
+            if own is not None:
+                for k in range(ng):
+                    own[int(new_labels[k])] = (cells[nearest == k], cells)
         if det_idx is None:
             self._groups = kept
         else:  # a subset of the regions: keep the others' groupings too (bounded)
