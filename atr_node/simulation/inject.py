@@ -204,9 +204,10 @@ def _altitude(altitude_m: float | np.ndarray) -> float:
 
 
 BATCH = True
-"""Trace the targets of one call in one :func:`~.raytrace.trace_many` batch, with the same
-placements, draws and pixels as tracing them one by one (False, the reference the tests
-compare with)."""
+"""Trace the random placements of one call in one :func:`~.raytrace.trace_many` batch (with
+:data:`PRECHECK`), with the same placements, draws and pixels as tracing them one by one
+(False, the reference the tests compare with). Explicit placements are always traced in one
+batch."""
 
 PRECHECK = True
 """Check a random placement before tracing it (:func:`_anchor_taken`, then the footprint the

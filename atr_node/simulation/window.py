@@ -107,7 +107,6 @@ class TraceWindow:
         return self.i0, self.i1, self.c0, self.c1
 
 
-
 def trace_window(mesh: Mesh, *, range0_m: float, dr_m: float, dx_m: float, rows: int, cols: int,
                  altitude_m: float) -> TraceWindow | None:
     """The window :func:`trace` traces a placed target into, or None when the trace is empty

@@ -81,6 +81,11 @@ def offset_m(c: dict, row: float, range_m: float) -> float:
     return math.hypot(de, dn)
 
 
+def object_map(img: np.ndarray):
+    return find_objects(img, img.mean(axis=0), dr_m=DR, dx_m=DX, template_length_m=2.0, echo_width_m=0.6,
+                        highlight=2.0, shadow=0.3, max_length_m=60.0)
+
+
 @pytest.fixture(scope="module")
 def run():
     settings = Settings()
@@ -127,9 +132,7 @@ def test_no_contact_on_the_bright_band(run):
 
 def test_the_band_is_background_in_the_object_map():
     img = scene()
-    b = img.mean(axis=0)
-    om = find_objects(img, b, dr_m=DR, dx_m=DX, template_length_m=2.0, echo_width_m=0.6, highlight=2.0,
-                      shadow=0.3, max_length_m=60.0)
+    om = object_map(img)
     fy, fx = om.block
     band_cols = np.arange(int((BAND_M[0] - RANGE0) / DR), int((BAND_M[1] + 1.0 - RANGE0) / DR))
     rows = np.arange(20, ROWS - 20, 25)
@@ -269,8 +272,7 @@ def test_an_object_centred_in_a_margin_is_left_to_its_unit():
     """group_detections drops (never clamps) an object whose centre lies outside the core: the
     neighbouring unit holds it in its core. One detection on the hull, seen from two cores."""
     img = scene()
-    om = find_objects(img, img.mean(axis=0), dr_m=DR, dx_m=DX, template_length_m=2.0, echo_width_m=0.6,
-                      highlight=2.0, shadow=0.3, max_length_m=60.0)
+    om = object_map(img)
     (wreck,) = [o for o in om.objects if not o.background]
     centre_row = round(wreck.row)
     kw = dict(range0_m=RANGE0, dr_m=DR, min_extent_m=0.3, max_extent_m=6.0)
@@ -390,9 +392,6 @@ def ripple_scene(seed: int = 11, target_gain: float = 8.0) -> np.ndarray:
     return img
 
 
-def object_map(img: np.ndarray):
-    return find_objects(img, img.mean(axis=0), dr_m=DR, dx_m=DX, template_length_m=2.0, echo_width_m=0.6,
-                        highlight=2.0, shadow=0.3, max_length_m=60.0)
 
 
 def test_a_ripple_field_is_seabed_not_an_extended_object():

@@ -54,23 +54,22 @@ def look(frame, model, leg, east0, heading, *, hit: bool, layers, gamma: float |
     g = track_geometry(frame, east0_m=east0, north0_m=0.0 if heading == 0.0 else 40.0, heading_deg=heading, rows=400,
                        cols=500, leg=leg)
     row, col = pixel_of(g, *POINT)
-    dets = {d: [] for d in DETS}
-    if hit:
-        gam = gamma if isinstance(gamma, dict) else {d: gamma for d in DETS}
-        joint = tuple((d, gam[d]) for d in DETS)
-        dets = {d: [Detection(d, row, col, gam[d], float(g.ranges_m[col]), 0.6, 2.0, 50, joint=joint)]
-                for d in DETS if gam[d] > model.tau[d]}
-        dets.update({d: [] for d in DETS if d not in dets})
+    gam = gamma if isinstance(gamma, dict) else {d: gamma for d in DETS}
+    joint = tuple((d, gam[d]) for d in DETS)
+    dets = {d: [Detection(d, row, col, gam[d], float(g.ranges_m[col]), 0.6, 2.0, 50, joint=joint)]
+            if hit and gam[d] > model.tau[d] else [] for d in DETS}
     cov = np.ones((400, 500), bool)
     obs = unit_observations(model, dets, lambda d: cov, g.ranges_m, DETS, layers)
     return Observation(leg, 1.7e9 + leg, g, obs)
 
 
 def bel(frame, model, views, evidence, gamma: float | dict = 4.5):
+    """Bel(T) at POINT after the views (leg, east0, heading, hit[, the view's own gamma])."""
     layers = evidence_layers(evidence, model, DETS)
     grid = EvidenceGrid(FusionSettings(evidence=evidence), gate_m=3.0, detectors=DETS, layers=layers)
-    for leg, east0, heading, hit in views:
-        grid.add_observation(look(frame, model, leg, east0, heading, hit=hit, layers=layers, gamma=gamma))
+    for leg, east0, heading, hit, *own in views:
+        grid.add_observation(look(frame, model, leg, east0, heading, hit=hit, layers=layers,
+                                  gamma=own[0] if own else gamma))
     grid.close_all()
     return float(grid.masses_at(*POINT).m_t), grid
 
@@ -144,15 +143,9 @@ def test_a_look_that_fired_weakly_is_a_miss(frame, model_95):
     weak_look = [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True)]
     b, grid = bel(frame, model_95, weak_look, "look", gamma=weak)
     assert b == 0.0 and grid.detections == []  # both looks weak: no T mass, no detection record
-    two_strong, _ = bel(frame, model_95, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True)], "look",
-                              gamma=4.5)
+    two_strong, _ = bel(frame, model_95, weak_look, "look")
     # a strong look, then a weak one: as a strong look and a miss
-    mixed_layers = evidence_layers("look", model_95, DETS)
-    grid2 = EvidenceGrid(FusionSettings(), gate_m=3.0, detectors=DETS, layers=mixed_layers)
-    grid2.add_observation(look(frame, model_95, 1, 0.0, 0.0, hit=True, layers=mixed_layers))
-    grid2.add_observation(look(frame, model_95, 2, 70.0, 180.0, hit=True, layers=mixed_layers, gamma=weak))
-    grid2.close_all()
-    b_mixed = float(grid2.masses_at(*POINT).m_t)
+    b_mixed, _ = bel(frame, model_95, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True, weak)], "look")
     b_miss, _ = bel(frame, model_95, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)], "look")
     assert b_mixed == pytest.approx(b_miss, rel=1e-12) and b_mixed < two_strong
 

@@ -123,16 +123,26 @@ WAIT_S = 60.0
 """A guard against a hang only: every wait ends at its event, long before this on any machine."""
 
 
-def follow_until(follower, done: Callable[[], bool], timeout_s: float = WAIT_S) -> bool:
-    """Receive on ``follower`` until ``done()`` holds; False if it never did."""
+def wait_until(done: Callable[[], bool], timeout_s: float = WAIT_S, poll_s: float = 0.05,
+               step: Callable[[], object] | None = None) -> bool:
+    """Until ``done()`` holds (``step()`` between checks, else a sleep of ``poll_s``); False if
+    it never did. The deadline is a hang guard, never a timing assertion."""
     import time
 
     deadline = time.monotonic() + timeout_s
     while not done():
         if time.monotonic() >= deadline:
             return False
-        follower.poll(0.1)
+        if step is not None:
+            step()
+        else:
+            time.sleep(poll_s)
     return True
+
+
+def follow_until(follower, done: Callable[[], bool], timeout_s: float = WAIT_S) -> bool:
+    """Receive on ``follower`` until ``done()`` holds; False if it never did."""
+    return wait_until(done, timeout_s, step=lambda: follower.poll(0.1))
 
 
 class StreamLines:

@@ -19,6 +19,8 @@ from atr_node.node import wire
 from atr_node.operators.book import ContactBook, read_contacts
 from atr_node.operators.export import format_of, to_csv, to_geojson, to_kml, write_export
 
+from .conftest import StreamLines, stop_client, wait_until
+
 KML = "{http://www.opengis.net/kml/2.2}"
 GEOJSON_TYPES = {"Point", "MultiPoint", "LineString", "MultiLineString", "Polygon", "MultiPolygon",
                  "GeometryCollection", "Feature", "FeatureCollection"}
@@ -218,18 +220,34 @@ def test_export_from_replay_contacts_out(mission, tmp_path):
 def test_export_from_a_live_node(live_node, tmp_path):
     node = live_node()
     outs = [tmp_path / "live.geojson", tmp_path / "live.kml", tmp_path / "live.csv"]
+    # stopped at an event (the file holds every contact the node published), not after seconds
+    # of silence: a loaded machine can keep the node quiet that long
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "export", "--from", node.endpoint,
-                             "--until-silent", "5", "--include-withdrawn", *sum((["-o", str(p)] for p in outs), [])],
-                            stderr=subprocess.PIPE, text=True)
-    first = proc.stderr.readline()  # printed once the subscription is known to be up
-    assert "node up" in first, first
-    node.release()
-    node.join()
-    _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
-    final = {}
-    for m in node.emitted:  # the node's own record of what it published: latest per id
-        final[m["id"]] = m
+                             "--until-silent", "0", "--refresh", "0.2", "--include-withdrawn",
+                             *sum((["-o", str(p)] for p in outs), [])], stderr=subprocess.PIPE, text=True)
+    stderr = StreamLines(proc.stderr)
+
+    def written() -> dict:
+        try:
+            return {f["id"]: {k: v for k, v in f["properties"].items() if k != "time_utc"}
+                    for f in json.loads(outs[0].read_text())["features"]}
+        except (OSError, ValueError):
+            return {}
+
+    try:
+        stderr.wait_for(lambda t: "node up" in t)  # printed once the subscription is known to be up
+        node.release()
+        node.join()
+        final = {}
+        for m in node.emitted:  # the node's own record of what it published: latest per id
+            final[m["id"]] = m
+        wait_until(lambda: written() == final, poll_s=0.1)
+        returncode = stop_client(proc)  # the files are written once more at the stop
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = stderr.close()
+    assert returncode == 0, err
     assert final, "the small mission should give contacts"
     doc = json.loads(outs[0].read_text())
     assert rfc7946_problems(doc) == []

@@ -26,7 +26,7 @@ from atr_node.node.publisher import Subscriber
 from atr_node.node.snapshot_endpoint import derived_snapshot_endpoint
 from atr_node.operators.stream import NodeFollower
 
-from .conftest import WAIT_S, StreamLines, follow_until, free_port_pair, stop_client
+from .conftest import WAIT_S, StreamLines, follow_until, free_port_pair, stop_client, wait_until
 
 
 @pytest.fixture(scope="module")
@@ -158,15 +158,11 @@ def test_export_from_started_mid_run_writes_every_live_contact(live_node, pause_
 
     try:
         stderr.wait_for(lambda t: "node up" in t)  # first heartbeat: the snapshot is asked right after it
-        deadline = time.monotonic() + WAIT_S  # a guard against a hang: the wait ends at the event
-        while node.service.snapshot_server.served == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(lambda: node.service.snapshot_server.served > 0)
         node.resume_feed.set()
         node.join()
         want = {c["id"]: c for c in node.service.pipeline.live_contacts()}
-        deadline = time.monotonic() + WAIT_S  # until the refreshed file holds the node's final list
-        while written() != want and time.monotonic() < deadline:
-            time.sleep(0.1)
+        wait_until(lambda: written() == want, poll_s=0.1)  # until the refreshed file holds the final list
         returncode = stop_client(proc)  # and the file is written once more at the stop
     finally:
         if proc.poll() is None:
@@ -197,16 +193,12 @@ def test_exwpt_started_mid_run_sends_the_live_contacts_first(live_node, pause_at
     stderr = StreamLines(proc.stderr)
     try:
         stderr.wait_for(lambda t: "node up" in t)
-        deadline = time.monotonic() + WAIT_S  # a guard against a hang: the wait ends at the event
-        while node.service.snapshot_server.served == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(lambda: node.service.snapshot_server.served > 0)
         node.resume_feed.set()
         node.join()
         after = [m for m in node.emitted[len(before):] if m["state"] != "withdrawn"]
         want = sorted(_live(before).values(), key=lambda c: c["id"]) + after
-        deadline = time.monotonic() + WAIT_S  # until every sentence is on the pty
-        while len(lines) < len(want) and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(lambda: len(lines) >= len(want))  # until every sentence is on the pty
         returncode = stop_client(proc)
     finally:
         stop.set()
@@ -295,11 +287,6 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
     joined = threading.Event()
     follower: list[NodeFollower] = []
 
-    def until(done) -> None:  # a wait for an event; the deadline is a hang guard only
-        deadline = time.monotonic() + WAIT_S
-        while not done() and time.monotonic() < deadline:
-            time.sleep(0.005)
-
     def node():  # as NodeService._emit: the view, then the PUB socket
         for m in messages:
             if m["seq"] == 300:
@@ -307,11 +294,12 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
                 # heartbeats until the follower's subscription is up (its first message asks
                 # for the snapshot), so the stream goes on while the snapshot is served: the
                 # race under test, however loaded the machine
-                until(lambda: pub.heartbeat(wire.heartbeat_message(
+                wait_until(lambda: pub.heartbeat(wire.heartbeat_message(
                     t=time.time(), uptime_s=1.0, tiles_in=0, tiles_done=0, tiles_dropped=0, tiles_rejected=0,
-                    queue_depth=0, p50_ms=0.0, p99_ms=0.0, mode="nominal")) or follower[0].stats.heartbeats > 0)
+                    queue_depth=0, p50_ms=0.0, p99_ms=0.0, mode="nominal")) or follower[0].stats.heartbeats > 0,
+                    poll_s=0.005)
             if m["seq"] == 1500:  # the snapshot is served before the last message, on any machine
-                until(lambda: follower[0].stats.snapshot == "ok")
+                wait_until(lambda: follower[0].stats.snapshot == "ok", poll_s=0.005)
             view.published(m)
             pub.contact(m)
             time.sleep(0.0005)
@@ -320,7 +308,7 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
     t.start()
     applied: list[dict] = []
     try:
-        until(lambda: view.snapshot()[0] >= 299)
+        wait_until(lambda: view.snapshot()[0] >= 299, poll_s=0.005)
         fol = NodeFollower(pub.endpoint, snapshot=srv.endpoint, on_contact=applied.append)
         follower.append(fol)
         joined.set()
