@@ -167,6 +167,11 @@ class DetectorSettings:
     """A shadow is smoothed I_n below this many times the unit's median."""
     max_object_length_m: float = 60.0
     """A highlight object longer than this is background (no detection)."""
+    patch_one_look: bool = False
+    """Declutter, off by default: a textured patch (``detectors/objects.py``: bright, at least two
+    template lengths, at most ``max_object_length_m``, no shadow at the coarse scale: a rock
+    pile, a mound) gives one look per unit, at its strongest place, not one per rock. About half
+    the false alarms, but a target in a patch with a stronger rock is lost (docs/detectors.md)."""
 
     def __post_init__(self) -> None:
         bad = [d for d in self.enabled if d not in DETECTOR_NAMES]

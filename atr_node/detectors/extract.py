@@ -60,6 +60,9 @@ class Detection:
     """Every enabled detector's response around this detection: (detector, maximum score over
     the template window of the anchor, NaN where it covered none), for look-level evidence
     (SPEC 6.1); None until the detect stage fills it in."""
+    patch: int = 0
+    """Textured patch of its unit the anchor lies in (:mod:`.objects`: a patch gives one look,
+    at its strongest place), numbered from 1 per unit; 0 none."""
 
 
 def find_detections(score: np.ndarray, tau: float, *, detector: str, range0_m: float, dr_m: float,

@@ -102,7 +102,8 @@ def detect(job: DetectJob, workspace: Workspace | None = None) -> DetectResult:
         if not ds.objects:
             return found
         return group_detections(found, objects, core_start=job.core[0], core_rows=shape[0], range0_m=job.range0_m,
-                                dr_m=job.dr_m, min_extent_m=ds.min_extent_m, max_extent_m=ds.max_extent_m)
+                                dr_m=job.dr_m, min_extent_m=ds.min_extent_m, max_extent_m=ds.max_extent_m,
+                                patches=ds.patch_one_look)
 
     joints: dict = {}  # one window read per place and detector, whichever detector found it
     for d in job.enabled:

@@ -445,3 +445,93 @@ def test_a_narrow_band_that_stays_put_is_a_band(width_m, gain):
     assert (om.owner_at(np.repeat(rows, c1 - c0), np.tile(np.arange(c0, c1), rows.size)) == -1).all()
     assert (om.owner[:, : c0 // om.block[1] - 2] == 0).all()  # and nothing else is
 
+
+
+# -- declutter (detectors.patch_one_look, off by default): a rock pile gives one look ----------
+PILE = dict(row=260, range_m=30.0, radius_m=8.0)  # a 16 m mound of rocks, no shadow as a whole
+LONE = dict(row=260, range_m=50.0)  # a proud object on flat sand, 12 m beyond the pile's edge
+
+
+def pile_scene(seed: int = 21) -> tuple[np.ndarray, list[tuple[int, float]]]:
+    """A bright mound strewn with rocks (each a bright echo and a short shadow), and a lone
+    proud object; returns the image and the rocks' (row, range)."""
+    rng = np.random.default_rng(seed)
+    img = rng.exponential(1.0, (ROWS, COLS)).astype(np.float32)
+    rr, cc = np.mgrid[0:ROWS, 0:COLS]
+    y, r = rr * DX, RANGE0 + cc * DR
+    mound = np.hypot(y - PILE["row"] * DX, r - PILE["range_m"]) <= PILE["radius_m"]
+    img[mound] *= 3.0
+    rocks = []
+    for dy, dr in [(-5.0, -3.0), (-5.0, 3.0), (0.0, -5.5), (0.0, 0.0), (0.0, 5.0), (5.0, -3.0), (5.0, 3.0)]:
+        ry, rg = PILE["row"] * DX + dy, PILE["range_m"] + dr
+        img[(np.abs(y - ry) <= 0.5) & (r > rg + 0.3) & (r <= rg + 1.3)] *= 0.05
+        img[(np.abs(y - ry) <= 0.5) & (np.abs(r - rg) <= 0.3)] *= 8.0
+        rocks.append((round(ry / DX), rg))
+    ty, tr = LONE["row"] * DX, LONE["range_m"]
+    img[(np.abs(y - ty) <= 0.75) & (r > tr + 0.4) & (r <= tr + 2.4)] *= 0.05
+    img[(np.abs(y - ty) <= 0.75) & (np.abs(r - tr) <= 0.4)] *= 8.0
+    return img, rocks
+
+
+def test_a_rock_pile_is_a_textured_patch_not_an_object():
+    img, rocks = pile_scene()
+    om = object_map(img)
+    rows = np.array([row for row, _ in rocks])
+    cols = np.array([round((rg - RANGE0) / DR) for _, rg in rocks])
+    assert (om.owner_at(rows, cols) == 0).all()  # not an extended object: its detections stay
+    assert om.objects == () or all(o.length_m < 4.0 for o in om.objects)
+    assert om.patch is not None
+    k = om.patch_at(rows, cols)
+    assert (k > 0).all() and len(set(k.tolist())) == 1  # one patch, holding every rock
+    lone = om.patch_at(np.array([LONE["row"]]), np.array([round((LONE["range_m"] - RANGE0) / DR)]))
+    assert lone[0] == 0
+    # the ripple field of 40 m is a patch too (under max_length_m); with max_length_m below
+    # its length it is left alone
+    at = (np.array([TARGET["row"] - 30]), np.array([round((TARGET["range_m"] - RANGE0) / DR)]))
+    assert object_map(ripple_scene()).patch_at(*at)[0] > 0
+    img = ripple_scene()
+    short = find_objects(img, img.mean(axis=0), dr_m=DR, dx_m=DX, template_length_m=2.0, echo_width_m=0.6,
+                         highlight=2.0, shadow=0.3, max_length_m=20.0)
+    assert short.patch_at(*at)[0] == 0
+
+
+def pile_contacts(declutter: bool) -> list[dict]:
+    settings = Settings()
+    settings = dataclasses.replace(settings, detectors=dataclasses.replace(settings.detectors,
+                                                                           patch_one_look=declutter))
+    pipe = Pipeline(settings, model=PerformanceModel.shipped(), emit=lambda m: None, workers=0)
+    try:
+        pipe.feed(LogRecord(t=1.7e9 + 60.0, link="sonar", msg=tile_map(pile_scene()[0])))
+        pipe.finish()
+        return live(pipe)
+    finally:
+        pipe.close()
+
+
+def test_declutter_makes_a_rock_pile_one_contact_and_leaves_the_lone_object():
+    off, on = pile_contacts(False), pile_contacts(True)
+
+    def in_pile(cs):
+        return [c for c in cs if offset_m(c, PILE["row"], PILE["range_m"]) <= PILE["radius_m"] + 1.5]
+
+    def lone(cs):
+        return [c for c in cs if offset_m(c, LONE["row"], LONE["range_m"] + 0.4) < 3.0]
+
+    assert len(in_pile(off)) >= 3, in_pile(off)  # by default every rock counts
+    assert len(in_pile(on)) == 1, in_pile(on)
+    assert len(lone(off)) == 1 and len(lone(on)) == 1
+    assert lone(on)[0]["bel"] == pytest.approx(lone(off)[0]["bel"], rel=1e-12)  # untouched
+
+
+def test_one_look_per_patch_keeps_the_strongest_place():
+    from atr_node.node.evidence import _one_per_patch
+
+    def det(row, col, patch, detector="mf"):
+        return Detection(detector, row, col, 1.0, col * DR, 0.5, 0.5, 10, patch=patch)
+
+    found = [det(10, 10, 1), det(20, 20, 1), det(20, 20, 1, "z"), det(30, 30, 2), det(40, 40, 0), det(50, 50, 2)]
+    strength = [1.0, 3.0, 3.0, 2.0, 0.5, 2.0]  # patch 1: (20, 20); patch 2: a tie, the first
+    kept = _one_per_patch(found, strength)
+    assert [(x.row, x.detector) for x in kept] == [(20, "mf"), (20, "z"), (30, "mf"), (40, "mf")]
+    assert _one_per_patch(found[4:5], [0.5]) == found[4:5]
+    assert _one_per_patch([], []) == []

@@ -302,6 +302,12 @@ def test_no_contact_in_the_water_column_or_on_the_first_return(real_data, tmp_pa
 
         assert near(places, "stbd", 925, 29.0)
         assert not near(places, "port", 330, 24.0)
+        # declutter (detectors.patch_one_look): the rock and sand-wave patches give one look
+        # per unit, so fewer contacts, none new, and the starboard object keeps its own
+        lean = _zones(_replay(xtf, tmp_path, "declutter", "[detectors]\npatch_one_look = true\n"), tiles, band)
+        assert len(lean) < len(places)
+        assert all(near(places, p.side, p.ping, p.slant_range_m) for p in lean)
+        assert near(lean, "stbd", 925, 29.0)
         before = _zones(_replay(xtf, tmp_path, "before", "", model=OLD_MODEL), tiles, band)
         assert near(before, "port", 330, 24.0)
     else:
