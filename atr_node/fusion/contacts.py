@@ -9,9 +9,11 @@ around detections, so objects a few metres apart can share one: a region whose d
 form several groups (each within the gate of its strongest detection) is split, each cell
 going to the nearest group. A contact's position comes from its detections
 (:func:`detection_position`: their confidence-weighted mean; ``sigma_m`` their spread plus
-``nav_sigma_m`` in quadrature); ``bel``, ``pl`` and ``m_theta`` are those of the region's
-peak cell; in a region split into groups (objects a few metres apart), every group's are
-those of its cell nearest to its position (:func:`_cell_at`), and so are its legs.
+``nav_sigma_m`` in quadrature); ``bel``, ``pl`` and ``m_theta`` are those of its cell of
+highest Bel(T) within ``sigma_m`` of that position (:func:`_peak_near`: not the region's peak,
+which can lie where one look's gate reached and another look that covered the object and
+missed it did not); in a region split into groups (objects a few metres apart), every
+group's are those of its cell nearest to its position (:func:`_cell_at`), and so are its legs.
 
 Extended objects (a wreck, ``detectors/objects.py``) come from the detect stage in pieces when
 they cross units' edges, one per unit, each at its own centre: components whose detections'
@@ -72,8 +74,9 @@ class _Component:
     mth: float
     iy: int
     ix: int
-    """The cell its Bel(T), pl, m_theta and legs are read at: its peak cell, or for a group of a
-    split region the cell nearest its position (:func:`_cell_at`)."""
+    """The cell its Bel(T), pl, m_theta and legs are read at: its highest Bel(T) within its
+    sigma of its position (:func:`_peak_near`), or for a group of a split region the cell
+    nearest its position (:func:`_cell_at`); its peak cell if it has no detection."""
     dets: list[int]
     """Its detections (indices into ``grid.detections``, ascending)."""
     fields: dict | None = None
@@ -82,7 +85,7 @@ class _Component:
     skipped without comparing."""
     members: "tuple[_Component, ...]" = ()
     """A merged extended object (:meth:`ContactTracker._merge_objects`): the components it
-    joins, in order (their peak cells give its legs); empty for any other component."""
+    joins, in order (their cells read give its legs); empty for any other component."""
     ext: Any = None
     """Its extended objects' footprints (:func:`_footprints`), computed on first use."""
 
@@ -369,6 +372,31 @@ def _cell_at(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, cells: np.ndarr
     return int(cells[int(np.argmin((e - ce) ** 2 + (n - cn) ** 2))])
 
 
+def _peak_near(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, bel: np.ndarray, cells: np.ndarray, ce: float,
+               cn: float, radius_m: float) -> int:
+    """The cell of ``cells`` (indices, in the extraction's order) with the highest Bel(T) within
+    ``radius_m`` of (ce, cn), the last such on a tie; the nearest cell when none is that close.
+
+    A component that is not split reads its Bel(T) there, not at the region's peak: the peak
+    can lie where one look's gate reached and another look, which covered the contact's own
+    place and missed it, did not (its swath edge or nadir gap 2 m away): an object shown on one
+    leg only, covered by the next at Pd 0.9, read 0.79 there and 0.42 where it is."""
+    e, n = grid.cell_centre(iy[cells], ix[cells])
+    d2 = (e - ce) ** 2 + (n - cn) ** 2
+    near = cells[d2 <= radius_m * radius_m]
+    if not near.size:
+        return int(cells[int(np.argmin(d2))])
+    b = bel[near]
+    return int(near[np.flatnonzero(b == b.max())[-1]])
+
+
+def _comp_cells(lab: np.ndarray, n_comp: int) -> list[np.ndarray]:
+    """Per component label, its cells (indices in the extraction's order, ascending)."""
+    order = np.argsort(lab, kind="stable")
+    bounds = np.searchsorted(lab[order], np.arange(n_comp + 1))
+    return [order[bounds[j]:bounds[j + 1]] for j in range(n_comp)]
+
+
 def _peaks(bel: np.ndarray, lab: np.ndarray, n_comp: int) -> np.ndarray:
     """Per component label, its peak cell: index of its highest Bel(T), the last such cell on
     a tie (the position comes from the detections, :func:`detection_position`)."""
@@ -586,7 +614,6 @@ class ContactTracker:
         det_reg = self._detection_labels(grid, iy, ix, reg)
         own: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, own=own)
-        peak = _peaks(bel, lab, n_comp)
         # detections of each component: one stable sort, not a scan of all detections per
         # component (same members, same order)
         d_order = np.argsort(det_lab, kind="stable")
@@ -595,10 +622,12 @@ class ContactTracker:
         # position from the detections behind a component (SPEC 7); one without any is never a
         # contact (SPEC 7)
         comps = []
+        cells_of = _comp_cells(lab, n_comp)
         for j, m in enumerate(members):
             if m:
                 ce, cn, sigma = contact_position(grid.detections, m, nav_sigma_m=self.fusion.nav_sigma_m)
-                p = _cell_at(grid, iy, ix, *own[j], ce, cn) if j in own else int(peak[j])
+                p = (_cell_at(grid, iy, ix, *own[j], ce, cn) if j in own
+                     else _peak_near(grid, iy, ix, bel, cells_of[j], ce, cn, sigma))
                 comps.append(_Component(j, ce, cn, sigma, float(bel[p]), float(mn[p]), float(mth[p]), int(iy[p]),
                                         int(ix[p]), m))
         comps = self._merge_objects(grid, comps)
@@ -742,6 +771,7 @@ class ContactTracker:
         # the full extraction's peaks on a subset of its cells (each component's cells in the
         # same order: the same peaks)
         peak = _peaks(bel, lab, n_comp)
+        cells_of = _comp_cells(lab, n_comp)
         d_order = np.argsort(det_lab, kind="stable")
         d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1)).tolist()
         r_order = np.argsort(reg, kind="stable")
@@ -762,6 +792,8 @@ class ContactTracker:
                              else (math.nan, math.nan, math.nan))
             if dl and j in own:  # a group of a split region: its own position
                 p = _cell_at(grid, iy, ix, *own[j], ce, cn)
+            elif dl:  # its highest Bel within its sigma of its position
+                p = _peak_near(grid, iy, ix, bel, cells_of[j], ce, cn, sigma)
             comps.append(_Component(key, ce, cn, sigma, float(bel[p]), float(mn[p]),
                                     float(mth[p]), int(iy[p]), int(ix[p]), dl))
         by_region: list[list[_Component]] = [[comps[j]] for j in range(n_reg)]
@@ -868,8 +900,8 @@ class ContactTracker:
         regions or split groups of their own; one object is one contact (ICD 3), whatever
         the tiles' cuts (SPEC 0). A merged component stands at the first member's place in
         the order, with the union of their detections (position and extent from those,
-        :func:`contact_position`, :func:`extent_fields`) and the peak of the highest Bel(T)
-        among them. Components without an extent are untouched. A function of the ordered
+        :func:`contact_position`, :func:`extent_fields`) and the cell read of the highest
+        Bel(T) among them. Components without an extent are untouched. A function of the ordered
         components only, so the incremental and full extractions agree."""
         ext = []
         for j, c in enumerate(comps):

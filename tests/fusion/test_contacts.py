@@ -356,3 +356,35 @@ def test_a_group_without_cells_reads_its_region(frame, incremental):
     assert live and all(0.0 <= x.bel <= 1.0 for x in live)
     for x in live:
         assert x.bel == pytest.approx(float(grid.masses_at(x.east_m, x.north_m).m_t), abs=0.05)
+
+
+@pytest.mark.parametrize("incremental", [True, False])
+@pytest.mark.parametrize("cut_m", [1.5, 2.0, 2.5])
+def test_an_object_missed_by_a_look_that_covered_it_reads_that_miss(frame, incremental, cut_m):
+    """Leg 2 covers the object's place (Pd 0.9) and misses it, but its swath ends ``cut_m``
+    beyond it, inside leg 1's gate (3 m). The region's peak then lies past leg 2's swath edge,
+    where leg 1's T mass is alone: the contact read leg 1's 0.9 there. It reads the highest
+    Bel within its sigma (1 m) of its position: leg 2's miss, in the closed form."""
+    from .conftest import observe, track_geometry
+
+    fusion = FusionSettings(evidence="paper")
+    grid = EvidenceGrid(fusion, gate_m=3.0, detectors=("mf",))
+    tracker = ContactTracker(fusion, frame, gate_m=3.0, incremental=incremental)
+    col = 400  # 20 m + 40 m of range: the object at 60 m east of the track
+    for leg in (1, 2):
+        g = track_geometry(frame, east0_m=0.0, north0_m=60.0, heading_deg=0.0, rows=300, cols=700, leg=leg)
+        cov = None
+        if leg == 2:
+            cov = np.zeros((300, 700), bool)
+            cov[:, : col + round(cut_m / 0.1)] = True
+        hits = [(100, col, 0.9)] if leg == 1 else []
+        grid.add_observation(observe(g, leg, 1000.0 * leg, {"mf": (cov, np.full(700, 0.9), hits)}))
+        tracker.update(grid, 1000.0 * leg)
+    grid.close_all()
+    tracker.update(grid, 3000.0)
+    (c,) = tracker.live.values()  # born at 0.9 after leg 1, kept above withdraw_bel
+    assert c.bel == pytest.approx(_own(0.9, None), rel=1e-9)
+    assert 1.0 - c.pl > 0.0  # notT mass: leg 2's miss reached the cell read
+    # the region's peak (past leg 2's swath) still holds leg 1's mass alone
+    far = grid.masses_at(c.east_m + cut_m + 0.5, c.north_m)
+    assert float(far.m_t) == pytest.approx(0.9, rel=1e-9)
