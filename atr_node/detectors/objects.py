@@ -18,7 +18,10 @@ where the evidence is, and the detections are regrouped (:func:`group_detections
    echo and its shadow are one component, so the broken outline of a hull is one object;
 5. per component, the extent from its highlight cells only (the shadow is not the object):
    centroid, long-axis direction from the second moments, length and width as the spread
-   of the cells along and across that axis (plus one cell);
+   of the cells along and across that axis (plus one cell). The steps below decide on all
+   of them; an extended object's reported extent and centre come from its echo only
+   (:func:`_echo`: the highlight cells in front of its shadow, over the rows the shadow
+   covers), since bright seabed past the shadow joins the component through it;
 6. an object needs a shadow at the coarse scale (``I_n`` smoothed by a Gaussian of
    :data:`COARSE_LENGTHS` template lengths below the shadow level somewhere in its
    component): over that scale seabed texture (ripples, rock, sand waves) averages out, so a
@@ -289,7 +292,14 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
                 n_patch += 1
                 patch[r0:r0 + bh, c0:c0 + bw][win] = n_patch
             continue
-        obj = replace(obj, background=bool(is_band or obj.length_m > max_length_m))
+        background = bool(is_band or obj.length_m > max_length_m)
+        if not background:
+            # its echo (5.): the highlight cells not beyond its shadow (bright seabed past the
+            # shadow, or after the stern, joins the component through the shadow and the closing)
+            ey, ex = _echo(win, hi[r0:r0 + bh, c0:c0 + bw], lo[r0:r0 + bh, c0:c0 + bw], my)
+            if ey.size >= 3:
+                obj = _shape(ey + r0, ex + c0, cy, cx, fy, fx)
+        obj = replace(obj, background=background)
         objects.append(obj)
         # its cells, and a margin, belong to it (the first object wins where margins meet)
         pr0, pc0 = max(r0 - my, 0), max(c0 - mx, 0)
@@ -301,6 +311,30 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
         band = np.convolve(band, np.ones(3), mode="same") > 0  # and a cell either side (its edges)
         owner[(owner == 0) & band[None, :]] = -1
     return ObjectMap(owner, (fy, fx), tuple(objects), (rows, cols), patch)
+
+
+def _echo(win: np.ndarray, hi: np.ndarray, lo: np.ndarray, reach: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows and columns (in the component's box) of an object's echo: its highlight cells in
+    rows within ``reach`` rows of one where it has a shadow cell, at ranges up to that shadow's
+    far end (columns increase with range). A hull's echo lies in front of its shadow, over the
+    rows the shadow covers; bright seabed beyond the shadow or past the stern is not the
+    hull. Empty when the component has no shadow cell."""
+    shade = win & lo
+    rows = np.flatnonzero(shade.any(axis=1))
+    if not rows.size:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    ends = win.shape[1] - 1 - np.argmax(shade[rows, ::-1], axis=1)  # last shadow column per shadow row
+    # a row without shadow takes the end of the nearest shadow row within reach (the rows at
+    # the bow and stern, the rims beside a broken shadow); not the farthest end within reach:
+    # an oblique hull's shadow ends farther on every row, and that reached into the seabed
+    every = np.arange(win.shape[0])
+    j = np.clip(np.searchsorted(rows, every), 1, rows.size - 1) if rows.size > 1 else np.zeros_like(every)
+    if rows.size > 1:
+        j = np.where(np.abs(rows[j - 1] - every) <= np.abs(rows[j] - every), j - 1, j)
+    far = np.where(np.abs(rows[j] - every) <= reach, ends[j], -1)
+    y, x = np.nonzero(win & hi)
+    keep = x <= far[y]
+    return y[keep], x[keep]
 
 
 def _shape(y: np.ndarray, x: np.ndarray, cy: float, cx: float, fy: int, fx: int) -> SeabedObject:

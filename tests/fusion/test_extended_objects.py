@@ -535,3 +535,25 @@ def test_one_look_per_patch_keeps_the_strongest_place():
     assert [(x.row, x.detector) for x in kept] == [(20, "mf"), (20, "z"), (30, "mf"), (40, "mf")]
     assert _one_per_patch(found[4:5], [0.5]) == found[4:5]
     assert _one_per_patch([], []) == []
+
+
+def test_bright_seabed_past_the_shadow_is_not_the_hull():
+    """Bright seabed beyond a hull's shadow joins its component through the shadow (and the
+    closing), and the Iver2 wreck measured 40 x 25 m (about 26 x 10 m on the waterfall): the
+    extent and centre come from the echo in front of the shadow, over the rows it covers."""
+    img = scene()
+    rr, cc = np.mgrid[0:ROWS, 0:COLS]
+    r = RANGE0 + cc * DR
+    a = math.radians(WRECK["axis_deg"])
+    dy, dr = rr * DX - WRECK["row"] * DX, r - WRECK["range_m"]
+    along, across = dy * math.cos(a) + dr * math.sin(a), -dy * math.sin(a) + dr * math.cos(a)
+    hull = (np.abs(along) <= WRECK["length_m"] / 2) & (np.abs(across) <= WRECK["width_m"] / 2)
+    far = np.where(hull, cc, -1).max(axis=1)
+    beyond = (far[:, None] >= 0) & (cc > far[:, None] + 50) & (cc <= far[:, None] + 130)  # 8 m past the shadow
+    img[beyond] *= 4.0
+    om = object_map(img)
+    (obj,) = [o for o in om.objects if not o.background]
+    assert abs(obj.length_m - WRECK["length_m"]) <= 0.2 * WRECK["length_m"], obj
+    assert obj.width_m <= 8.0, obj
+    centre_m = RANGE0 + obj.col * DR
+    assert abs(centre_m - WRECK["range_m"]) <= 2.0 and abs(obj.row - WRECK["row"]) * DX <= 2.0, obj
