@@ -26,7 +26,11 @@ where the evidence is, and the detections are regrouped (:func:`group_detections
    :data:`COARSE_LENGTHS` template lengths below the shadow level somewhere in its
    component): over that scale seabed texture (ripples, rock, sand waves) averages out, so a
    textured patch, however bright, is seabed and its detections stay as they are (a target
-   in a ripple field keeps its own); the shadow of a hull metres across does not;
+   in a ripple field keeps its own); the shadow of a hull metres across does not. And the
+   component must hold acoustic shadow: at least :data:`SHADOW_SHARE` of its cells below
+   :data:`SHADOW_DEPTH` of the shadow level (no echo at all). Dark seabed (mud, dark sand in
+   the SASSED textures) passes the coarse test, but is -5 to -8 dB, not -10 dB and below;
+   without this test nearly every unit of one such scene was a 30-60 m object;
 7. an object (one that passed step 6) at least ``2 x template.length_m`` long is
    **extended**; one longer than ``max_object_length_m``, or a narrow one within ``BAND_AXIS_DEG`` of the track that spans
    the whole unit or lies along a band column (a band at constant range, drifting with the
@@ -89,6 +93,12 @@ an object are closed (the near and far rims of a hull, its shadow)."""
 COARSE_LENGTHS = 0.5
 """Sigma of the coarse scale, in template lengths: an extended object has a shadow there (a
 patch of ripples, rock or sand waves is bright and dark on a finer scale, so it has none)."""
+SHADOW_DEPTH = 1.0 / 3.0
+"""An acoustic shadow cell: its mean ``I_n`` below this fraction of the shadow level (0.1 x the
+seabed's with the default ``object_shadow`` 0.3, -10 dB): no echo at all, not dark seabed."""
+SHADOW_SHARE = 0.05
+"""An extended object's component holds at least this share of acoustic shadow cells (a hull's
+10-50 %; dark patches of SASSED texture, which pass the coarse test, 0.4-1.7 %)."""
 MARGIN_LENGTHS = 0.5
 """A detection anchored this many template lengths from an object belongs to it."""
 
@@ -252,6 +262,7 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
                                   sigmaX=COARSE_LENGTHS * template_length_m / cx,
                                   sigmaY=COARSE_LENGTHS * template_length_m / cy,
                                   borderType=cv2.BORDER_REFLECT) < shadow_level)
+    dark = ok & (mean < SHADOW_DEPTH * shadow_level)  # acoustic shadow: no echo
     owner = np.zeros((h, w), np.int32)
     # 4. echo and shadow pieces of one object, joined
     close_m, margin_m = CLOSE_LENGTHS * template_length_m, MARGIN_LENGTHS * template_length_m
@@ -283,7 +294,8 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
             spans and (last_row - first_row + 1) * cy >= 4 * template_length_m))
         if obj.length_m < extended_m and not is_band:
             continue
-        if not is_band and not deep[r0:r0 + bh, c0:c0 + bw][win].any():
+        if not is_band and not (deep[r0:r0 + bh, c0:c0 + bw][win].any()
+                                and dark[r0:r0 + bh, c0:c0 + bw][win].mean() >= SHADOW_SHARE):
             # no shadow at the coarse scale: textured seabed, not an object; one of at most
             # max_length_m is a patch (8.), larger fields of texture are left as they are
             if obj.length_m <= max_length_m:
