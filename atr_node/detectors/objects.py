@@ -27,23 +27,23 @@ where the evidence is, and the detections are regrouped (:func:`group_detections
    component): over that scale seabed texture (ripples, rock, sand waves) averages out, so a
    textured patch, however bright, is seabed and its detections stay as they are (a target
    in a ripple field keeps its own); the shadow of a hull metres across does not. And the
-   component must hold acoustic shadow: at least :data:`SHADOW_SHARE` of its cells below
-   :data:`SHADOW_DEPTH` of the shadow level (no echo at all). Dark seabed (mud, dark sand in
+   component must hold acoustic shadow: at least :data:`SHADOW_SHARE` of its smoothed cells
+   below :data:`SHADOW_DEPTH` of the shadow level (no echo at all). Dark seabed (mud, dark sand in
    the SASSED textures) passes the coarse test, but is -5 to -8 dB, not -10 dB and below;
    without this test nearly every unit of one such scene was a 30-60 m object;
 7. an object (one that passed step 6) at least ``2 x template.length_m`` long is
    **extended**; one longer than ``max_object_length_m``, or a narrow one within ``BAND_AXIS_DEG`` of the track that spans
    the whole unit or lies along a band column (a band at constant range, drifting with the
    altitude), is **background**;
-8. a component that failed step 6 (no coarse shadow), at least ``2 x template.length_m`` and
-   at most ``max_object_length_m`` long, is a **textured patch** (a rock pile, a mound, a
-   patch of coarse sand). Its detections stay as they are, marked with the patch
-   (``Detection.patch``) only with ``detectors.patch_one_look`` (off by default): the evidence
-   then takes one look per patch, at its strongest place (``node/evidence.py``). A declutter
-   option, not the default: on the held-out generator's development seeds (201-202) it
-   halved the false alarms (450 to 229) but lost 8 of 94 targets, a target in a SASSED
-   patch beside a stronger texture feature; on the river recording it makes a rocky mound
-   one contact, not eight (docs/detectors.md).
+8. a component without a coarse shadow (step 6; dark seabed is not one), at least
+   ``2 x template.length_m`` and at most ``max_object_length_m`` long, is a **textured
+   patch** (a rock pile, a mound, a patch of coarse sand). Its detections stay as they are,
+   marked with the patch (``Detection.patch``) only with ``detectors.patch_one_look`` (off by
+   default): the evidence then takes one look per patch, at its strongest place
+   (``node/evidence.py``). A declutter option, not the default: on the held-out generator's
+   development seeds (201-202) it halved the false alarms (450 to 229) but lost 8 of 94
+   targets, a target in a SASSED patch beside a stronger texture feature; on the river
+   recording it makes a rocky mound one contact, not eight (docs/detectors.md).
 
 A detection whose anchor lies in an extended object (its component, dilated by
 ``MARGIN_LENGTHS`` template lengths) joins it: the object gives ONE detection per detector, with the gamma of the
@@ -96,9 +96,10 @@ patch of ripples, rock or sand waves is bright and dark on a finer scale, so it 
 SHADOW_DEPTH = 1.0 / 3.0
 """An acoustic shadow cell: its mean ``I_n`` below this fraction of the shadow level (0.1 x the
 seabed's with the default ``object_shadow`` 0.3, -10 dB): no echo at all, not dark seabed."""
-SHADOW_SHARE = 0.05
-"""An extended object's component holds at least this share of acoustic shadow cells (a hull's
-10-50 %; dark patches of SASSED texture, which pass the coarse test, 0.4-1.7 %)."""
+SHADOW_SHARE = 0.02
+"""An extended object's component holds at least this share of acoustic shadow cells (smoothed
+``I_n``; the Iver2 wreck 9.5 %, numpy hulls and their pieces 33-36 %; dark patches of SASSED
+texture, which pass the coarse test, at most 0.1 %, a numpy patchwork of dark seabed 0.3 %)."""
 MARGIN_LENGTHS = 0.5
 """A detection anchored this many template lengths from an object belongs to it."""
 
@@ -262,7 +263,9 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
                                   sigmaX=COARSE_LENGTHS * template_length_m / cx,
                                   sigmaY=COARSE_LENGTHS * template_length_m / cy,
                                   borderType=cv2.BORDER_REFLECT) < shadow_level)
-    dark = ok & (mean < SHADOW_DEPTH * shadow_level)  # acoustic shadow: no echo
+    # acoustic shadow (no echo) on the smoothed cells: with cells of one pixel, plain speckle
+    # puts about 7 % of the seabed's cells below a tenth of its median
+    dark = ok & (sm < SHADOW_DEPTH * shadow_level)
     owner = np.zeros((h, w), np.int32)
     # 4. echo and shadow pieces of one object, joined
     close_m, margin_m = CLOSE_LENGTHS * template_length_m, MARGIN_LENGTHS * template_length_m
@@ -294,11 +297,12 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
             spans and (last_row - first_row + 1) * cy >= 4 * template_length_m))
         if obj.length_m < extended_m and not is_band:
             continue
-        if not is_band and not (deep[r0:r0 + bh, c0:c0 + bw][win].any()
-                                and dark[r0:r0 + bh, c0:c0 + bw][win].mean() >= SHADOW_SHARE):
+        coarse_shadow = is_band or deep[r0:r0 + bh, c0:c0 + bw][win].any()
+        if not is_band and not (coarse_shadow and dark[r0:r0 + bh, c0:c0 + bw][win].mean() >= SHADOW_SHARE):
             # no shadow at the coarse scale: textured seabed, not an object; one of at most
-            # max_length_m is a patch (8.), larger fields of texture are left as they are
-            if obj.length_m <= max_length_m:
+            # max_length_m is a patch (8.), larger fields of texture are left as they are.
+            # Dark seabed (a coarse shadow but no acoustic shadow) is seabed, not a patch
+            if not coarse_shadow and obj.length_m <= max_length_m:
                 if patch is None:
                     patch = np.zeros((h, w), np.int32)
                 n_patch += 1
@@ -310,7 +314,9 @@ def find_objects(pixels: np.ndarray, background: np.ndarray, *, dr_m: float, dx_
             # shadow, or after the stern, joins the component through the shadow and the closing)
             ey, ex = _echo(win, hi[r0:r0 + bh, c0:c0 + bw], lo[r0:r0 + bh, c0:c0 + bw], my)
             if ey.size >= 3:
-                obj = _shape(ey + r0, ex + c0, cy, cx, fy, fx)
+                echo = _shape(ey + r0, ex + c0, cy, cx, fy, fx)
+                if echo.length_m >= extended_m:  # else (a broken shadow) the whole highlight
+                    obj = echo
         obj = replace(obj, background=background)
         objects.append(obj)
         # its cells, and a margin, belong to it (the first object wins where margins meet)

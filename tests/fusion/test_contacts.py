@@ -388,3 +388,28 @@ def test_an_object_missed_by_a_look_that_covered_it_reads_that_miss(frame, incre
     # the region's peak (past leg 2's swath) still holds leg 1's mass alone
     far = grid.masses_at(c.east_m + cut_m + 0.5, c.north_m)
     assert float(far.m_t) == pytest.approx(0.9, rel=1e-9)
+
+
+def test_peak_near_reads_within_the_radius_or_the_nearest_cell():
+    """``_peak_near``: the highest Bel among the cells within the radius (the last on a tie);
+    the nearest cell when none is that close."""
+    from atr_node.fusion.contacts import _peak_near
+
+    grid = EvidenceGrid(FusionSettings(), gate_m=3.0, detectors=("mf",))
+    iy = np.array([0, 0, 0, 0, 10])
+    ix = np.array([0, 1, 2, 3, 10])
+    bel = np.array([0.9, 0.6, 0.6, 0.95, 0.99])
+    e, n = grid.cell_centre(iy, ix)  # e, n of each cell (whichever axis ix runs along)
+    ce, cn = float(e[1]), float(n[1])
+    step = float(np.hypot(e[1] - e[0], n[1] - n[0]))
+    cells = np.arange(5)
+    # within one step of cell 1: cells 0-2; the highest there is cell 0 (0.9)
+    assert _peak_near(grid, iy, ix, bel, cells, ce, cn, 1.01 * step) == 0
+    # within two steps: cell 3 (0.95) too; cell 4 (0.99) is far
+    assert _peak_near(grid, iy, ix, bel, cells, ce, cn, 2.01 * step) == 3
+    # a tie goes to the last such cell
+    assert _peak_near(grid, iy, ix, np.array([0.5, 0.7, 0.7, 0.1, 0.1]), cells, ce, cn, 1.01 * step) == 2
+    # none within the radius: the nearest cell
+    far_e, far_n = ce + 1000.0, cn + 1000.0
+    d = np.hypot(e - far_e, n - far_n)
+    assert _peak_near(grid, iy, ix, bel, cells, far_e, far_n, 1.0) == int(np.argmin(d))
