@@ -165,8 +165,8 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     info: dict[str, Any] = {"score": _looks.LR_SCORE_DEFINITION if lrs is not None else _looks.SCORE_DEFINITION,
                             "fired": "at least one detector of the set above its threshold",
                             "confidence": "P(T | Z >= z, fired), prior per cell as for the detectors",
-                            "pd": "share of injected targets on which the set fired with z >= tau (the look's threshold, "
-                                  f"look_pd {calibration.look_pd:g}), per range bin"}
+                            "pd": "share of injected targets on which the set fired with z > tau (tau the float just below "
+                                  f"the look's threshold z_tau, look_pd {calibration.look_pd:g}), per range bin"}
     if len(sizes) != 1:
         info["skipped"] = "non-target responses of the detectors are not joint (different lengths)"
         return _looks.LookModel(tails, {}, info, lrs)

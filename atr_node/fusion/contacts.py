@@ -10,10 +10,10 @@ form several groups (each within the gate of its strongest detection) is split, 
 going to the nearest group. A contact's position comes from its detections
 (:func:`detection_position`: their confidence-weighted mean; ``sigma_m`` their spread plus
 ``nav_sigma_m`` in quadrature); ``bel``, ``pl`` and ``m_theta`` are those of its cell of
-highest Bel(T) within ``sigma_m`` of that position (:func:`_peak_near`: not the region's peak,
-which can lie where one look's gate reached and another look that covered the object and
-missed it did not); in a region split into groups (objects a few metres apart), every
-group's are those of its cell nearest to its position (:func:`_cell_at`), and so are its legs.
+highest Bel(T) within ``sigma_m`` of that position (not the region's peak, which can lie where
+one look's gate reached and another look that covered the object and missed it did not); in
+a region split into groups (objects a few metres apart), every group's are those of its cell
+nearest to its position; its legs are those of the same cell (:func:`_read_cell`).
 
 Extended objects (a wreck, ``detectors/objects.py``) come from the detect stage in pieces when
 they cross units' edges, one per unit, each at its own centre: components whose detections'
@@ -74,9 +74,8 @@ class _Component:
     mth: float
     iy: int
     ix: int
-    """The cell its Bel(T), pl, m_theta and legs are read at: its highest Bel(T) within its
-    sigma of its position (:func:`_peak_near`), or for a group of a split region the cell
-    nearest its position (:func:`_cell_at`); its peak cell if it has no detection."""
+    """The cell its Bel(T), pl, m_theta and legs are read at (:func:`_read_cell`); its first cell
+    if it has no detection (never published)."""
     dets: list[int]
     """Its detections (indices into ``grid.detections``, ascending)."""
     fields: dict | None = None
@@ -354,40 +353,45 @@ def detection_position(detections: Sequence[DetectionRecord], idx: Sequence[int]
     return e, n, math.sqrt(0.5 * var + float(nav_sigma_m) ** 2)
 
 
-def _cell_at(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, cells: np.ndarray, region: np.ndarray, ce: float,
-             cn: float) -> int:
-    """The cell of ``cells`` (indices, in the extraction's order) nearest to (ce, cn), the first
-    on a tie; of ``region`` (its region's cells) when the group has none (each cell goes to the
-    nearest group's position, so a group squeezed between two others can get no cell).
-
-    Every group of a split region reads its Bel(T) there, not at its peak: a group's cells
-    border its neighbour's, whose gate reaches them with that group's T mass, so at its peak a
-    one-detection satellite 4 m from a rock seen on three legs read the rock's 0.998. It is the
-    cell nearest the position, not ``grid.masses_at(ce, cn)``: a position on a cell of another
-    group, or below ``withdraw_bel``, still reads one of its own. Groups closer than the gate
-    still share T mass there."""
-    if not cells.size:
-        cells = region
-    e, n = grid.cell_centre(iy[cells], ix[cells])
-    return int(cells[int(np.argmin((e - ce) ** 2 + (n - cn) ** 2))])
-
-
 def _peak_near(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, bel: np.ndarray, cells: np.ndarray, ce: float,
                cn: float, radius_m: float) -> int:
     """The cell of ``cells`` (indices, in the extraction's order) with the highest Bel(T) within
-    ``radius_m`` of (ce, cn), the last such on a tie; the nearest cell when none is that close.
-
-    A component that is not split reads its Bel(T) there, not at the region's peak: the peak
-    can lie where one look's gate reached and another look, which covered the contact's own
-    place and missed it, did not (its swath edge or nadir gap 2 m away): an object shown on one
-    leg only, covered by the next at Pd 0.9, read 0.79 there and 0.42 where it is."""
+    ``radius_m`` of (ce, cn), the last such on a tie; the nearest cell (the first on a tie) when
+    none is that close, and always with ``radius_m = 0`` (:func:`_read_cell`)."""
     e, n = grid.cell_centre(iy[cells], ix[cells])
     d2 = (e - ce) ** 2 + (n - cn) ** 2
-    near = cells[d2 <= radius_m * radius_m]
+    near = cells[d2 <= radius_m * radius_m] if radius_m > 0 else cells[:0]
     if not near.size:
         return int(cells[int(np.argmin(d2))])
     b = bel[near]
     return int(near[np.flatnonzero(b == b.max())[-1]])
+
+
+def _read_cell(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, bel: np.ndarray, reg: np.ndarray,
+               cells: np.ndarray, region: int | None, ce: float, cn: float, sigma_m: float) -> int:
+    """The cell a component with detections reads its Bel(T), pl, m_theta and legs at, from its
+    ``cells`` (indices in the extraction's order, ascending) and position (ce, cn):
+
+    - not split (``region`` None): its highest Bel(T) within ``sigma_m`` of its position, not
+      its region's peak: the peak can lie where one look's gate reached and another look, which
+      covered the contact's place and missed it, did not (its swath edge or nadir gap 2 m away):
+      an object shown on one leg only, covered by the next at Pd 0.9, read 0.79 there and 0.42
+      where it is;
+    - a group of a split region (``region`` its region's label in ``reg``): the cell nearest
+      its position, of the region's cells when the group has none (each cell goes to the
+      nearest group's position, so a group squeezed between two others can get no cell). A
+      group's cells border its neighbour's, whose gate reaches them with that group's T mass, so
+      at its peak a one-detection satellite 4 m from a rock seen on three legs read the rock's
+      0.998. It is the cell nearest the position, not ``grid.masses_at(ce, cn)``: a position on a
+      cell of another group, or below ``withdraw_bel``, still reads one of its own. Groups closer
+      than the gate still share T mass there.
+
+    Both extraction paths read through here, so they agree message for message."""
+    if region is None:
+        return _peak_near(grid, iy, ix, bel, cells, ce, cn, sigma_m)
+    if not cells.size:
+        cells = np.flatnonzero(reg == region)
+    return _peak_near(grid, iy, ix, bel, cells, ce, cn, 0.0)
 
 
 def _comp_cells(lab: np.ndarray, n_comp: int) -> list[np.ndarray]:
@@ -395,18 +399,6 @@ def _comp_cells(lab: np.ndarray, n_comp: int) -> list[np.ndarray]:
     order = np.argsort(lab, kind="stable")
     bounds = np.searchsorted(lab[order], np.arange(n_comp + 1))
     return [order[bounds[j]:bounds[j + 1]] for j in range(n_comp)]
-
-
-def _peaks(bel: np.ndarray, lab: np.ndarray, n_comp: int) -> np.ndarray:
-    """Per component label, its peak cell: index of its highest Bel(T), the last such cell on
-    a tie (the position comes from the detections, :func:`detection_position`)."""
-    # the peak: the last of a stable sort by (label, bel)
-    top = np.full(n_comp, -np.inf)
-    np.maximum.at(top, lab, bel)
-    at_top = np.flatnonzero(bel == top[lab])
-    peak = np.zeros(n_comp, dtype=np.int64)
-    np.maximum.at(peak, lab[at_top], at_top)
-    return peak
 
 
 _NEAR_K = 8
@@ -612,7 +604,7 @@ class ContactTracker:
             bel = mn = mth = np.zeros(0)
         n_reg, reg = label_cells(iy, ix)
         det_reg = self._detection_labels(grid, iy, ix, reg)
-        own: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        own: dict[int, int] = {}
         lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, own=own)
         # detections of each component: one stable sort, not a scan of all detections per
         # component (same members, same order)
@@ -626,8 +618,7 @@ class ContactTracker:
         for j, m in enumerate(members):
             if m:
                 ce, cn, sigma = contact_position(grid.detections, m, nav_sigma_m=self.fusion.nav_sigma_m)
-                p = (_cell_at(grid, iy, ix, *own[j], ce, cn) if j in own
-                     else _peak_near(grid, iy, ix, bel, cells_of[j], ce, cn, sigma))
+                p = _read_cell(grid, iy, ix, bel, reg, cells_of[j], own.get(j), ce, cn, sigma)
                 comps.append(_Component(j, ce, cn, sigma, float(bel[p]), float(mn[p]), float(mth[p]), int(iy[p]),
                                         int(ix[p]), m))
         comps = self._merge_objects(grid, comps)
@@ -766,11 +757,10 @@ class ContactTracker:
             det_reg = np.where(hit, reg[o[pos]], -1)
             det_idx, det_reg = det_idx[hit], det_reg[hit]
         extras: list[tuple[int, int]] = []
-        own: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        own: dict[int, int] = {}
         lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, det_idx, extras, own)
-        # the full extraction's peaks on a subset of its cells (each component's cells in the
-        # same order: the same peaks)
-        peak = _peaks(bel, lab, n_comp)
+        # each component's cells in the full extraction's order (a subset of its cells): the
+        # same cells read
         cells_of = _comp_cells(lab, n_comp)
         d_order = np.argsort(det_lab, kind="stable")
         d_bounds = np.searchsorted(det_lab[d_order], np.arange(n_comp + 1)).tolist()
@@ -779,7 +769,6 @@ class ContactTracker:
         first = code[r_order[r_bounds[:-1]]].tolist() if n_reg else []  # each region's first cell
         comps = []
         for j in range(n_comp):
-            p = int(peak[j])
             if j < n_reg:
                 key: tuple = (0, first[j])
             else:
@@ -790,10 +779,10 @@ class ContactTracker:
             # bookkeeping but never published (_publish)
             ce, cn, sigma = (contact_position(grid.detections, dl, nav_sigma_m=self.fusion.nav_sigma_m) if dl
                              else (math.nan, math.nan, math.nan))
-            if dl and j in own:  # a group of a split region: its own position
-                p = _cell_at(grid, iy, ix, *own[j], ce, cn)
-            elif dl:  # its highest Bel within its sigma of its position
-                p = _peak_near(grid, iy, ix, bel, cells_of[j], ce, cn, sigma)
+            # (without detections: its first cell, for the bookkeeping only)
+            cells = cells_of[j]
+            p = (_read_cell(grid, iy, ix, bel, reg, cells, own.get(j), ce, cn, sigma) if dl
+                 else int(cells[0]) if cells.size else 0)
             comps.append(_Component(key, ce, cn, sigma, float(bel[p]), float(mn[p]),
                                     float(mth[p]), int(iy[p]), int(ix[p]), dl))
         by_region: list[list[_Component]] = [[comps[j]] for j in range(n_reg)]
@@ -961,7 +950,7 @@ class ContactTracker:
     def _split(self, grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, reg: np.ndarray, n_reg: int,
                det_reg: np.ndarray, det_idx: np.ndarray | None = None,
                extras: list[tuple[int, int]] | None = None,
-               own: dict[int, tuple[np.ndarray, np.ndarray]] | None = None) -> tuple[np.ndarray, int, np.ndarray]:
+               own: dict[int, int] | None = None) -> tuple[np.ndarray, int, np.ndarray]:
         """Split belief regions that hold several distinct objects.
 
         A region is a union of association gates around detections, so two objects a few
@@ -971,8 +960,8 @@ class ContactTracker:
 
         ``det_reg`` labels the grid's detections ``det_idx`` (ascending; None: all of them).
         ``extras``, if given, receives (region, group) of each label beyond ``n_reg``, in order;
-        ``own``, if given, maps every label of a split region to (its cells, its region's cells),
-        ascending (what :func:`_cell_at` reads).
+        ``own``, if given, maps every label of a split region to its region's label (what
+        :func:`_read_cell` reads).
         """
         lab = reg.copy()
         det_lab = det_reg.copy()
@@ -1017,8 +1006,7 @@ class ContactTracker:
             if extras is not None:
                 extras.extend((j, k) for k in range(1, ng))
             if own is not None:
-                for k in range(ng):
-                    own[int(new_labels[k])] = (cells[nearest == k], cells)
+                own.update((int(label), j) for label in new_labels)
         if det_idx is None:
             self._groups = kept
         else:  # a subset of the regions: keep the others' groupings too (bounded)

@@ -90,7 +90,7 @@ def detect(job: DetectJob, workspace: Workspace | None = None) -> DetectResult:
                                           dr_m=job.dr_m, dx_m=job.dx_m, min_extent_m=ds.min_extent_m,
                                           max_extent_m=upper_m)
     # extended objects (a wreck) and bands, once per unit for every detector
-    # (detectors/objects.py), and only when there is something to regroup: about 10 ms per
+    # (detectors/objects.py), and only when there is something to regroup: about 17 ms per
     # 1.5-Mpx unit, spent on the few units with a detection; without them, the extent filter
     # alone, as find_detections applies it
     objects = find_objects(job.pixels, job.background, dr_m=job.dr_m, dx_m=job.dx_m,

@@ -65,7 +65,7 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
         out = []
         for d in enabled:
             dets = tuple(DetectionEvidence.from_detection(x, float(model.confidence(d, x.gamma)))
-                         for x in _one_per_patch(detections[d], [x.gamma for x in detections[d]]))
+                         for x in _strongest_of_patches(detections[d]))
             pd = _pd(model.pd(d, ranges_m)) if missed else np.zeros(ranges_m.size)
             out.append(DetectorObservation(d, covered(d), pd, dets))
         return tuple(out)
@@ -84,7 +84,7 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
         # kind): the strongest single detector stands for the look
         for d in enabled:
             dets += [DetectionEvidence.from_detection(x, float(model.confidence(d, x.gamma)), source=d)
-                     for x in _one_per_patch(detections[d], [x.gamma for x in detections[d]])]
+                     for x in _strongest_of_patches(detections[d])]
         pd = np.max([_pd(model.pd(d, ranges_m)) for d in enabled], axis=0) if missed else np.zeros(ranges_m.size)
     else:
         scored = []
@@ -92,9 +92,9 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
             for x in detections[d]:
                 joint = dict(x.joint) if x.joint is not None else {d: x.gamma}
                 scored.append((d, x, float(model.look_score({k: np.float64(v) for k, v in joint.items()}, enabled))))
-        best = {id(x) for x in _one_per_patch([x for _, x, _ in scored], [z for _, _, z in scored])}
-        for d, x, z in scored:
-            if id(x) not in best:
+        keep = _one_per_patch([x for _, x, _ in scored], [z for _, _, z in scored])
+        for (d, x, z), k in zip(scored, keep):
+            if not k:
                 continue
             if table.tau_source == "look_pd" and not z > table.tau:
                 continue  # a look this weak is a miss (calibration.look_pd): no T mass here
@@ -106,16 +106,21 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
     return (DetectorObservation(LOOK_LAYER, cov, pd, tuple(dets)),)
 
 
-def _one_per_patch(found: Sequence[Any], strength: Sequence[float]) -> list[Any]:
-    """``found`` (detections of one unit) without those of a textured patch
-    (``Detection.patch``, ``detectors/objects.py``) but at the patch's strongest place: the
-    detections anchored where the largest ``strength`` of the patch is (the first such on ties),
-    so a rock pile is one look, not one per rock. Detections outside patches all stay."""
+def _one_per_patch(found: Sequence[Any], strength: Sequence[float]) -> list[bool]:
+    """Which of ``found`` (detections of one unit) count: all outside textured patches
+    (``Detection.patch``, ``detectors/objects.py``); in a patch, those anchored at its strongest
+    place (the largest ``strength`` there, the first such on ties), so a rock pile is one look,
+    not one per rock."""
     top: dict[int, tuple[float, int, int]] = {}
     for x, v in zip(found, strength):
         if x.patch and (x.patch not in top or v > top[x.patch][0]):
             top[x.patch] = (v, x.row, x.col)
-    return [x for x in found if not x.patch or (x.row, x.col) == top[x.patch][1:]]
+    return [not x.patch or (x.row, x.col) == top[x.patch][1:] for x in found]
+
+
+def _strongest_of_patches(found: Sequence[Any]) -> list[Any]:
+    """One detector's ``found`` with :func:`_one_per_patch` by gamma."""
+    return [x for x, k in zip(found, _one_per_patch(found, [x.gamma for x in found])) if k]
 
 
 def _pd(pd: np.ndarray) -> np.ndarray:

@@ -52,7 +52,7 @@ def test_tail_table_is_the_jeffreys_survival_at_its_knots(rng):
     assert tail_table(np.full(7, np.nan)).u.tolist() == [0.0, 0.0]  # no response: tells nothing
 
 
-@pytest.mark.parametrize("look_pd", [0.0, 0.9, 0.95])
+@pytest.mark.parametrize("look_pd", [0.0, 0.9, 0.95, 0.99])  # 0.99: more than the fired share, rule off
 def test_look_pd_is_the_share_of_targets_on_which_the_look_detected(rng, look_pd):
     """P(y) of a look: injected targets on which a detector fired and, with look_pd > 0, the
     look score reached z_tau; z_tau the largest threshold keeping look_pd of them (0: any)."""

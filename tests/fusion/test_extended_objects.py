@@ -103,6 +103,17 @@ def live(pipe) -> list[dict]:
     return [c for c in pipe.contacts if c["state"] != "withdrawn"]
 
 
+def scene_contacts(img: np.ndarray, settings: Settings | None = None) -> list[dict]:
+    """The live contacts of one tile of ``img`` through the node's pipeline (shipped model)."""
+    pipe = Pipeline(settings or Settings(), model=PerformanceModel.shipped(), emit=lambda m: None, workers=0)
+    try:
+        pipe.feed(LogRecord(t=1.7e9 + 60.0, link="sonar", msg=tile_map(img)))
+        pipe.finish()
+        return live(pipe)
+    finally:
+        pipe.close()
+
+
 def test_the_wreck_is_one_contact_with_its_extent(run):
     pipe, _ = run
     near = [c for c in live(pipe) if offset_m(c, WRECK["row"], WRECK["range_m"]) < 12.0]
@@ -405,14 +416,7 @@ def test_a_ripple_field_is_seabed_not_an_extended_object():
 
 
 def test_a_target_in_a_ripple_field_is_a_contact_where_it_is():
-    settings = Settings()
-    pipe = Pipeline(settings, model=PerformanceModel.shipped(), emit=lambda m: None, workers=0)
-    try:
-        pipe.feed(LogRecord(t=1.7e9 + 60.0, link="sonar", msg=tile_map(ripple_scene())))
-        pipe.finish()
-        near = [c for c in live(pipe) if offset_m(c, TARGET["row"], TARGET["range_m"] + 0.4) < 3.0]
-    finally:
-        pipe.close()
+    near = [c for c in scene_contacts(ripple_scene()) if offset_m(c, TARGET["row"], TARGET["range_m"] + 0.4) < 3.0]
     assert len(near) == 1 and "length_m" not in near[0], near
 
 
@@ -499,13 +503,7 @@ def pile_contacts(declutter: bool) -> list[dict]:
     settings = Settings()
     settings = dataclasses.replace(settings, detectors=dataclasses.replace(settings.detectors,
                                                                            patch_one_look=declutter))
-    pipe = Pipeline(settings, model=PerformanceModel.shipped(), emit=lambda m: None, workers=0)
-    try:
-        pipe.feed(LogRecord(t=1.7e9 + 60.0, link="sonar", msg=tile_map(pile_scene()[0])))
-        pipe.finish()
-        return live(pipe)
-    finally:
-        pipe.close()
+    return scene_contacts(pile_scene()[0], settings)
 
 
 def test_declutter_makes_a_rock_pile_one_contact_and_leaves_the_lone_object():
@@ -531,9 +529,9 @@ def test_one_look_per_patch_keeps_the_strongest_place():
 
     found = [det(10, 10, 1), det(20, 20, 1), det(20, 20, 1, "z"), det(30, 30, 2), det(40, 40, 0), det(50, 50, 2)]
     strength = [1.0, 3.0, 3.0, 2.0, 0.5, 2.0]  # patch 1: (20, 20); patch 2: a tie, the first
-    kept = _one_per_patch(found, strength)
+    kept = [x for x, k in zip(found, _one_per_patch(found, strength)) if k]
     assert [(x.row, x.detector) for x in kept] == [(20, "mf"), (20, "z"), (30, "mf"), (40, "mf")]
-    assert _one_per_patch(found[4:5], [0.5]) == found[4:5]
+    assert _one_per_patch(found[4:5], [0.5]) == [True]
     assert _one_per_patch([], []) == []
 
 
@@ -593,14 +591,7 @@ def test_dark_seabed_patches_are_not_an_extended_object(seed):
 
 
 def test_a_target_among_dark_seabed_patches_is_a_contact_where_it_is():
-    settings = Settings()
-    pipe = Pipeline(settings, model=PerformanceModel.shipped(), emit=lambda m: None, workers=0)
-    try:
-        pipe.feed(LogRecord(t=1.7e9 + 60.0, link="sonar", msg=tile_map(patchwork_scene(31))))
-        pipe.finish()
-        near = [c for c in live(pipe) if offset_m(c, TARGET["row"], TARGET["range_m"] + 0.4) < 3.0]
-    finally:
-        pipe.close()
+    near = [c for c in scene_contacts(patchwork_scene(31)) if offset_m(c, TARGET["row"], TARGET["range_m"] + 0.4) < 3.0]
     assert len(near) == 1 and "length_m" not in near[0], near
 
 

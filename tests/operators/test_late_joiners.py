@@ -246,7 +246,7 @@ def test_replay_command_serves_the_snapshot_on_the_port_after_publish(mission, t
                              "--online-calibration", "off", "--workers", "0", "--quiet", "--speed", "50",
                              "--publish", f"tcp://127.0.0.1:{port}", "--contacts-out", str(out)],
                             stderr=subprocess.PIPE, text=True)
-    fol = NodeFollower(f"tcp://127.0.0.1:{port}", snapshot=f"tcp://127.0.0.1:{port + 1}", snapshot_timeout_s=10)
+    fol = NodeFollower(f"tcp://127.0.0.1:{port}", snapshot=f"tcp://127.0.0.1:{port + 1}", snapshot_timeout_s=WAIT_S)
     stderr = StreamLines(proc.stderr)
     try:
         assert fol.wait_heartbeat(WAIT_S)
