@@ -348,6 +348,11 @@ class CalibrationSettings:
     """A look detects where its score z reaches z_tau, the largest threshold that keeps this share
     of the injected targets (fired and z >= z_tau); weaker looks count as misses (SPEC 6.1,
     docs/fusion.md). 0: every look on which a detector fired detects (models before 2026-11-25)."""
+    look_z_min: float = 0.0
+    """With ``look_score = "lr"``, a look detects only where its score z (the sum of the
+    detectors' log likelihood ratios) is above this too: at ``z <= 0`` its joint responses are
+    at least as likely on target-free seabed as on a target, and the look is a miss, not a weak
+    detection (docs/fusion.md). ``-inf``: no such floor (models before 2026-11-26)."""
     pd_target: float = 0.95
     range_bin_m: float = 10.0
     online: bool = True
@@ -399,6 +404,8 @@ class CalibrationSettings:
         _check(self.prior in ("area", "fixed"), "calibration.prior", "must be 'area' or 'fixed'")
         _check(self.look_score in ("lr", "fisher"), "calibration.look_score", "must be 'lr' or 'fisher'")
         _check(0.0 <= self.look_pd < 1.0, "calibration.look_pd", "must be in [0, 1)")
+        _check(not math.isnan(self.look_z_min) and self.look_z_min < math.inf, "calibration.look_z_min",
+               "must be a number below inf (-inf: no floor)")
         _check(0.0 < self.target_density_km2 <= 1e6, "calibration.target_density_km2", "must be in (0, 1e6]")
         _check(0.0 < self.pd_target < 1.0, "calibration.pd_target", "must be in (0, 1)")
         _check(self.range_bin_m > 0, "calibration.range_bin_m", "must be > 0")

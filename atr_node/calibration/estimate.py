@@ -166,7 +166,9 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
                             "fired": "at least one detector of the set above its threshold",
                             "confidence": "P(T | Z >= z, fired), prior per cell as for the detectors",
                             "pd": "share of injected targets on which the set fired with z > tau (tau the float just below "
-                                  f"the look's threshold z_tau, look_pd {calibration.look_pd:g}), per range bin"}
+                                  f"the look's threshold z_tau, look_pd {calibration.look_pd:g}"
+                                  + (f"; tau at least look_z_min {calibration.look_z_min:g}" if lrs is not None else "")
+                                  + "), per range bin"}
     if len(sizes) != 1:
         info["skipped"] = "non-target responses of the detectors are not joint (different lengths)"
         return _looks.LookModel(tails, {}, info, lrs)
@@ -186,6 +188,10 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
             z_tau = look_tau(z_t, f_t, calibration.look_pd)
             if z_tau > tau:
                 tau, source = float(np.nextafter(z_tau, -np.inf)), "look_pd"
+            # ... and, for the likelihood-ratio score, a look whose detectors together say the
+            # seabed is at least as likely as a target (z <= look_z_min, 0) is a miss as well
+            if lrs is not None and calibration.look_z_min > tau:
+                tau, source = float(calibration.look_z_min), "look_z"
             x_t = np.where(f_t, z_t, np.where(np.isfinite(z_t), below, np.nan))
             x_n = np.where(f_n, z_n, np.where(np.isfinite(z_n), below, np.nan))
             conf = confidence_curve(x_t, x_n, tau, prior_target=prior_target,

@@ -49,7 +49,7 @@ SHIPPED_MODEL = Path(__file__).resolve().parent.parent / "data" / "performance_m
 class DetectorPerformance:
     """One detector's estimates at its threshold ``tau``.
 
-    ``tau_source`` is ``"dobeck"`` (from the synthetic targets at the Pd target) or
+    ``tau_source`` is ``"dobeck"`` (from the synthetic targets at the Pd target), ``"look_z"`` (a look detects where z > tau = ``calibration.look_z_min``) or
     ``"config"``; for a look table (SPEC 6.1) ``"look"`` (every fired look detects; tau is
     below every fired calibration score) or ``"look_pd"`` (a look detects where its score z >
     tau, ``calibration.look_pd``); ``pd_at_tau`` the fraction of synthetic targets detected.

@@ -52,13 +52,17 @@ def test_tail_table_is_the_jeffreys_survival_at_its_knots(rng):
     assert tail_table(np.full(7, np.nan)).u.tolist() == [0.0, 0.0]  # no response: tells nothing
 
 
+@pytest.mark.parametrize("look_z_min", [-math.inf, 0.0, 2.0])  # 2: above z_tau, the floor decides
 @pytest.mark.parametrize("look_pd", [0.0, 0.9, 0.95, 0.99])  # 0.99: more than the fired share, rule off
-def test_look_pd_is_the_share_of_targets_on_which_the_look_detected(rng, look_pd):
+def test_look_pd_is_the_share_of_targets_on_which_the_look_detected(rng, look_pd, look_z_min):
     """P(y) of a look: injected targets on which a detector fired and, with look_pd > 0, the
-    look score reached z_tau; z_tau the largest threshold keeping look_pd of them (0: any)."""
+    look score reached z_tau; z_tau the largest threshold keeping look_pd of them (0: any); with
+    the likelihood-ratio score, also z > look_z_min (a look whose detectors together favour the
+    seabed is a miss)."""
     resp = joint_responses(rng)
-    cal = CalibrationSettings(prior="fixed", look_pd=look_pd)
+    cal = CalibrationSettings(prior="fixed", look_pd=look_pd, look_z_min=look_z_min)
     model = estimate_model(resp, calibration=cal, thresholds=ThresholdSettings())
+    floors = 0
     for subset in (("mf",), ("mf", "smf"), DETS):
         table = model.look(subset)
         fired = np.zeros(resp.n_targets, bool)
@@ -66,13 +70,20 @@ def test_look_pd_is_the_share_of_targets_on_which_the_look_detected(rng, look_pd
             fired |= resp.target[d] > model.tau[d]
         z = np.array([float(model.look_score({d: np.float64(resp.target[d][i]) for d in subset}, subset))
                       for i in range(resp.n_targets)])
-        if look_pd > 0 and fired.mean() >= look_pd:
+        # z_tau by direct count: the k-th strongest fired target, k = ceil(look_pd * targets)
+        k = math.ceil(look_pd * resp.n_targets - 1e-9)
+        z_tau = np.sort(z[fired])[::-1][k - 1] if look_pd > 0 and fired.sum() >= k else -math.inf
+        if look_z_min > -math.inf and z[fired].min() <= look_z_min and look_z_min >= z_tau:
+            assert table.tau_source == "look_z" and table.tau == look_z_min  # the floor: z > look_z_min
+            floors += 1
+        elif look_pd > 0 and fired.mean() >= look_pd:
             assert table.tau_source == "look_pd"
             kept = fired & (z > table.tau)
             assert kept.mean() >= look_pd  # look_pd of the targets detect ...
-            z_tau = float(np.nextafter(table.tau, np.inf))  # ... and no higher threshold keeps them
-            assert (fired & (z > z_tau)).mean() < look_pd
-        else:  # the rule is off: every fired look detects
+            assert table.tau == np.nextafter(z_tau, -np.inf)
+            z_next = float(np.nextafter(table.tau, np.inf))  # ... and no higher threshold keeps them
+            assert (fired & (z > z_next)).mean() < look_pd
+        else:  # the rules are off: every fired look detects
             assert table.tau_source == "look" and (z[fired] > table.tau).all()
         fired &= z > table.tau
         # the confidence table's exceedances are exactly the detecting looks (targets and cells)
@@ -91,13 +102,17 @@ def test_look_pd_is_the_share_of_targets_on_which_the_look_detected(rng, look_pd
                 assert table.pyr.injected[b] == n and table.pyr.detected[b] == k
                 assert table.pyr.pd[b] == pytest.approx((k + 0.5) / (n + 1.0), abs=1e-12)
         assert table.pd_at_tau == pytest.approx(fired.mean(), abs=1e-12)
+    if look_z_min == 2.0:
+        assert floors == 3  # the floor decided every table: the test reached its branch
 
 
 def test_one_detector_look_is_that_detectors_own_table(rng):
     """For a single detector z is a monotone function of gamma and "fired" is gamma > tau:
-    the look confidence at z(gamma) is the detector's c(gamma)."""
+    the look confidence at z(gamma) is the detector's c(gamma) (without the floor look_z_min,
+    which keeps only the looks at z > 0 and so conditions the table on more than firing)."""
     resp = joint_responses(rng)
-    model = estimate_model(resp, calibration=CalibrationSettings(prior="fixed"), thresholds=ThresholdSettings())
+    model = estimate_model(resp, calibration=CalibrationSettings(prior="fixed", look_z_min=-math.inf),
+                           thresholds=ThresholdSettings())
     g = np.quantile(resp.target["smf"][resp.target["smf"] > model.tau["smf"]], np.linspace(0.02, 0.98, 25))
     z = model.look_score({"smf": g}, ("smf",))
     np.testing.assert_allclose(model.look(("smf",)).confidence_at(z), model.confidence("smf", g), atol=0.03)

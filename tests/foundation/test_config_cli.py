@@ -41,6 +41,8 @@ def write(tmp_path, text, name="c.toml"):
     ("sensor = 5\n", "sensor", "expected a table"),
     ("[sensor]\naltitude_m = -1.0\n", "sensor.altitude_m", "must be > 0"),
     ("[fusion]\neps = 0.5\n", "fusion.eps", "must be in"),
+    ("[calibration]\nlook_z_min = nan\n", "calibration.look_z_min", "must be a number below inf"),
+    ("[calibration]\nlook_z_min = inf\n", "calibration.look_z_min", "must be a number below inf"),
     ("[node]\nheartbeat_s = 5.0\n", "node.heartbeat_s", "at least once a second"),
     ("[mission]\norigin_lat_deg = 44.0\n", "mission.origin_lat_deg", "together"),
 ])

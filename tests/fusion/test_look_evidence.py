@@ -38,15 +38,26 @@ def responses():
 
 @pytest.fixture(scope="module")
 def model(responses):
-    """Every fired look detects (look_pd 0): Pd(r) flat enough for the closed forms below."""
-    return estimate_model(responses, calibration=CalibrationSettings(prior="fixed", prior_target=0.01, look_pd=0.0),
+    """Every fired look detects (look_pd 0, no floor on z): Pd(r) flat enough for the closed
+    forms below."""
+    return estimate_model(responses, calibration=CalibrationSettings(prior="fixed", prior_target=0.01, look_pd=0.0,
+                                                                     look_z_min=-math.inf),
                           thresholds=ThresholdSettings())
 
 
 @pytest.fixture(scope="module")
 def model_95(responses):
-    """The default rule: a look detects where z keeps 95 % of the injected targets."""
-    return estimate_model(responses, calibration=CalibrationSettings(prior="fixed", prior_target=0.01, look_pd=0.95),
+    """The rule look_pd: a look detects where z keeps 95 % of the injected targets (alone, no
+    floor on z)."""
+    return estimate_model(responses, calibration=CalibrationSettings(prior="fixed", prior_target=0.01, look_pd=0.95,
+                                                                     look_z_min=-math.inf),
+                          thresholds=ThresholdSettings())
+
+
+@pytest.fixture(scope="module")
+def model_z(responses):
+    """The floor alone (look_pd 0, look_z_min 0 as by default): a look detects where z > 0."""
+    return estimate_model(responses, calibration=CalibrationSettings(prior="fixed", prior_target=0.01, look_pd=0.0),
                           thresholds=ThresholdSettings())
 
 
@@ -161,3 +172,27 @@ def test_without_the_look_rule_every_fired_look_detects(frame, model):
     assert z < table.tau  # below every fired calibration score
     b, grid = bel(frame, model, [(1, 0.0, 0.0, True)], "look", gamma=weak)
     assert len(grid.detections) == 1 and b == pytest.approx(float(table.confidence_at(z)), rel=1e-12) and b > 0
+
+
+def test_a_look_whose_detectors_favour_the_seabed_is_a_miss(frame, model, model_z):
+    """z <= 0 (calibration.look_z_min, the default): the detectors' log likelihood ratios sum
+    to evidence for the seabed. Such a look gives no T mass and its miss stands, so an object
+    with a strong look and such a look ends as a strong look and a miss; without the floor
+    (the same responses, ``model``) the weak look is a detection and the miss is gone."""
+    table = model_z.look(DETS)
+    assert table.tau_source == "look_z" and table.tau == 0.0
+    tau = model_z.tau
+    weak = {d: (tau[d] + 0.05 if d in ("lac", "z") else tau[d] - 1.0) for d in DETS}
+    z = model_z.look_score({d: np.float64(v) for d, v in weak.items()}, DETS)
+    assert z <= 0.0 < model_z.look_score({d: np.float64(4.5) for d in DETS}, DETS)
+    assert z > model.look(DETS).tau  # the same look detects without the floor
+    legs = [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True, weak)]
+    b_mixed, grid = bel(frame, model_z, legs, "look")
+    b_miss, _ = bel(frame, model_z, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)], "look")
+    c = float(table.confidence_at(model_z.look_score({d: np.float64(4.5) for d in DETS}, DETS)))
+    q = float(table.pd_at(35.0))  # leg 2 sees POINT at 35 m (as in the one-leg test above)
+    assert b_mixed == pytest.approx(b_miss, rel=1e-12)
+    assert b_mixed == pytest.approx(c * (1 - q) / (1 - c * q), rel=1e-6)  # Dempster, closed form
+    assert [d.leg for d in grid.detections] == [1, 1, 1, 1]  # the weak look left no detection record
+    b_open, grid_open = bel(frame, model, legs, "look")
+    assert 2 in {d.leg for d in grid_open.detections} and b_open > b_mixed
