@@ -99,3 +99,41 @@ def test_covering_legs_is_the_node_s_coverage_at_pd_0_8():
     assert bench_quality.covering_legs(run, (30.0, 45.0), dets) == set()  # past the last ping
     assert bench_quality.covering_legs(run, (70.0, 15.0), dets) == set()  # beyond the swath
     assert bench_quality.covering_legs(run, (30.0, 15.0), dets, pd_min=pd_30 + 1e-9) == set()
+
+
+def test_one_run_per_folder_and_only_finished_scenes_are_reused(tmp_path, capsys):
+    """A second run on a folder in use stops at once with one line (exit 2) and writes
+    nothing; a scene folder is reused only when its scene.json is this generator's for the
+    same parameters: a folder whose run was interrupted (no scene.json), or an older
+    generator's, is made again. Two runs on one folder once scored each other's half-written
+    scenes (Pd 0 on whole scenes)."""
+    import fcntl
+
+    out = tmp_path / "q"
+    args = ["--seabeds", "sand", "--seeds", "7", "--legs", "2", "--leg-length", "60", "--online-calibration", "off",
+            "--out", str(out), "--recordings", "none"]
+    out.mkdir()
+    with open(out / ".lock", "w") as other:  # another run holds the folder
+        other.write("4242\n")
+        other.flush()
+        fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        rc = bench_quality.main(args + ["--json", str(tmp_path / "q.json")])
+        err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "in use by another run (pid 4242)" in err
+    assert sorted(p.name for p in out.iterdir()) == [".lock"] and not (tmp_path / "q.json").exists()
+    # an interrupted scene: its tiles there, no scene.json; and a stale one of another generator
+    scene = out / "sand-7-2x60"
+    scene.mkdir()
+    (scene / "mission.atrlog").write_bytes(b"ATRLOG half")
+    assert bench_quality.main(args) == 0
+    meta = json.loads((scene / "scene.json").read_text())
+    assert meta["seed"] == 7 and (scene / "mission.atrlog").stat().st_size > 1000
+    first = (scene / "mission.atrlog").read_bytes()
+    meta["generator_version"] = "0"
+    (scene / "scene.json").write_text(json.dumps(meta))
+    (scene / "mission.atrlog").write_bytes(b"stale")
+    assert bench_quality.main(args) == 0
+    assert (scene / "mission.atrlog").read_bytes() == first  # made again, byte for byte the same scene
+    mtime = (scene / "mission.atrlog").stat().st_mtime_ns
+    assert bench_quality.main(args) == 0 and (scene / "mission.atrlog").stat().st_mtime_ns == mtime  # reused
+    assert bench_quality.main(args + ["--seeds", "x7"]) == 2 and "expected comma-separated integers" in capsys.readouterr().err

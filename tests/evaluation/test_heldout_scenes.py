@@ -325,3 +325,24 @@ def test_independent_of_the_node_s_simulator_and_algorithms():
     assert not bad, bad
     assert "atr_node.records.tile" in imported and "atr_node.io.atrlog" in imported
     assert set(SEABEDS) == {"sand", "ripples", "sassed"}
+
+
+def test_an_interrupted_scene_leaves_the_folder_as_it_was(tmp_path):
+    """Files are written beside the folder and moved in when the scene is done: a run stopped
+    midway (here by its progress callback, as Ctrl-C would) leaves no file of it, neither in the
+    folder nor beside it, and an earlier scene there stays whole."""
+    out = tmp_path / "scene"
+    generate_scene(out, seabed="sand", seed=3, **SMALL)
+    before = {f: (out / f).read_bytes() for f in FILES}
+
+    def stop(done, total):
+        if done == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        generate_scene(out, seabed="sand", seed=4, progress=stop, **SMALL)
+    assert {f: (out / f).read_bytes() for f in FILES} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]  # no partial folder left beside it
+    with pytest.raises(KeyboardInterrupt):
+        generate_scene(tmp_path / "new", seabed="sand", seed=4, progress=stop, **SMALL)
+    assert not (tmp_path / "new").exists()

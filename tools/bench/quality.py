@@ -28,7 +28,13 @@ Bel >= 0.999 and the contacts without a detection.
     python tools/bench/quality.py --json out.json --out /tmp/quality
     atr-node bench quality
 
-Exit codes: 0 ok, 1 a scene failed, 2 usage.
+Scenes are kept in ``--out`` and reused by later runs when their ``scene.json`` says the same
+generator version, seabed, seed and size; anything else there (an older generator's scene, one
+a run was interrupted in) is generated again. One run at a time per ``--out``: a second run on
+a folder in use stops at once with one line (two runs on one folder once scored each other's
+half-written scenes).
+
+Exit codes: 0 ok, 1 a scene failed, 2 usage (including ``--out`` in use by another run).
 """
 
 from __future__ import annotations
@@ -36,8 +42,10 @@ from __future__ import annotations
 import argparse
 import functools
 import csv
+import fcntl
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -389,7 +397,7 @@ def main_heldout(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from atr_node.config import load_settings
     from atr_node.errors import AtrError
-    from atr_node.evaluation.heldout import SEABEDS, generate_scene
+    from atr_node.evaluation.heldout import SEABEDS
 
     try:
         settings = load_settings(args.config)
@@ -401,17 +409,82 @@ def main_heldout(argv: list[str] | None = None) -> int:
     if bad:
         print(f"bench_quality: unknown seabed(s) {bad}; expected some of {list(SEABEDS)}", file=sys.stderr)
         return 2
-    seeds = [int(s) for s in args.seeds.split(",") if s]
+    try:
+        seeds = [int(s) for s in args.seeds.split(",") if s]
+    except ValueError:
+        print(f"bench_quality: --seeds {args.seeds!r}: expected comma-separated integers", file=sys.stderr)
+        return 2
     legs, length = args.legs, args.leg_length
     if args.quick:
         seabeds, seeds, legs, length = ["sand"], [seeds[0]], 3, 80.0
     out = Path(args.out)
+    try:
+        lock = _lock_folder(out)
+    except OSError as exc:
+        print(f"bench_quality: {exc}", file=sys.stderr)
+        return 2
+    with lock:
+        return _heldout_run(args, out, settings, seabeds, seeds, legs, length, argv)
+
+
+def _lock_folder(out: Path):
+    """An exclusive lock on ``out/.lock`` (held while the returned file is open): one run per
+    folder. OSError naming the folder (and the other run's pid) when another run holds it."""
+    out.mkdir(parents=True, exist_ok=True)
+    fh = open(out / ".lock", "a+")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        fh.seek(0)
+        pid = fh.read().strip() or "?"
+        fh.close()
+        raise OSError(f"{out} is in use by another run (pid {pid}): wait for it, or give another --out") from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(f"{os.getpid()}\n")
+    fh.flush()
+    return fh
+
+
+def _reusable(d: Path, seabed: str, seed: int, legs: int, length: float) -> bool:
+    """A scene folder a finished run of this generator made for these parameters."""
+    from atr_node.evaluation.heldout import GENERATOR_VERSION
+
+    try:
+        scene = json.loads((d / "scene.json").read_text())
+    except (OSError, ValueError):
+        return False
+    same = (scene.get("generator_version") == GENERATOR_VERSION and scene.get("seed") == seed
+            and scene.get("legs") == legs and math.isclose(float(scene.get("leg_length_m", math.nan)), length)
+            and (scene.get("seabed") or {}).get("kind") == seabed)
+    return same and all((d / f).is_file() for f in ("mission.atrlog", "truth.csv", "one_leg.csv"))
+
+
+def _write_whole(path: Path, text: str) -> None:
+    """``text`` into ``path`` by a sibling file and a rename: never half-written."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv) -> int:
+    from atr_node.errors import AtrError
+    from atr_node.evaluation.heldout import generate_scene
+
     results = []
     for sb in seabeds:
         for seed in seeds:
             d = out / f"{sb}-{seed}-{legs}x{length:g}"
-            if not (d / "mission.atrlog").is_file():
-                generate_scene(d, seabed=sb, seed=seed, legs=legs, leg_length_m=length)
+            if not _reusable(d, sb, seed, legs, length):
+                try:
+                    generate_scene(d, seabed=sb, seed=seed, legs=legs, leg_length_m=length)
+                except (ValueError, OSError) as exc:
+                    print(f"bench_quality: {d.name}: {exc}", file=sys.stderr)
+                    return 1
             print(f"{d.name}: scoring ...", file=sys.stderr, flush=True)
             try:
                 results.append(score_scene(d, settings, online=args.online_calibration))
@@ -438,12 +511,12 @@ def main_heldout(argv: list[str] | None = None) -> int:
         harness.record(f"recording {p.name}: replay and scoring", [float(recordings[-1]["seconds"])], clock="wall")
     text = markdown(results) + ("\n\n" + recordings_markdown(recordings) if recordings else "")
     print(text)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "quality.md").write_text(text + "\n")
+    _write_whole(out / "quality.md", text + "\n")
     if args.json:
-        Path(args.json).write_text(json.dumps({"command": "python tools/bench/quality.py " + " ".join(argv or sys.argv[1:]),
-                                               "scenes": results, "recordings": recordings},
-                                              indent=1, default=float) + "\n")
+        _write_whole(Path(args.json), json.dumps({"command": "python tools/bench/quality.py "
+                                                  + " ".join(argv or sys.argv[1:]),
+                                                  "scenes": results, "recordings": recordings},
+                                                 indent=1, default=float) + "\n")
     return 0
 
 
