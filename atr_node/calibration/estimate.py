@@ -167,8 +167,12 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
                             "confidence": "P(T | Z >= z, fired), prior per cell as for the detectors",
                             "pd": "share of injected targets on which the set fired with z > tau (tau the float just below "
                                   f"the look's threshold z_tau, look_pd {calibration.look_pd:g}"
-                                  + (f"; tau at least look_z_min {calibration.look_z_min:g}" if lrs is not None else "")
+                                  + (f"; or look_z_min {calibration.look_z_min:g} itself where that is higher, "
+                                     "tau_source look_z" if lrs is not None else "")
                                   + "), per range bin"}
+    if lrs is not None:
+        # None: no floor (-inf has no JSON form)
+        info["look_z_min"] = float(calibration.look_z_min) if math.isfinite(calibration.look_z_min) else None
     if len(sizes) != 1:
         info["skipped"] = "non-target responses of the detectors are not joint (different lengths)"
         return _looks.LookModel(tails, {}, info, lrs)

@@ -49,10 +49,11 @@ SHIPPED_MODEL = Path(__file__).resolve().parent.parent / "data" / "performance_m
 class DetectorPerformance:
     """One detector's estimates at its threshold ``tau``.
 
-    ``tau_source`` is ``"dobeck"`` (from the synthetic targets at the Pd target), ``"look_z"`` (a look detects where z > tau = ``calibration.look_z_min``) or
+    ``tau_source`` is ``"dobeck"`` (from the synthetic targets at the Pd target) or
     ``"config"``; for a look table (SPEC 6.1) ``"look"`` (every fired look detects; tau is
-    below every fired calibration score) or ``"look_pd"`` (a look detects where its score z >
-    tau, ``calibration.look_pd``); ``pd_at_tau`` the fraction of synthetic targets detected.
+    below every fired calibration score), ``"look_pd"`` (a look detects where its score z >
+    tau, ``calibration.look_pd``) or ``"look_z"`` (z > tau = ``calibration.look_z_min``, the
+    higher of the two); ``pd_at_tau`` the fraction of synthetic targets detected.
     """
 
     tau: float

@@ -38,6 +38,7 @@ References
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import math
@@ -58,6 +59,9 @@ from ..io.atrlog import AtrLogWriter
 from ..records.tile import SensorInfo, Tile, TileNav
 
 GENERATOR_VERSION = "1"
+PARTIAL_PREFIX = ".partial-"
+"""Hidden folder in a scene's folder that :func:`generate_scene` writes into before moving the
+files in; one left behind is a killed run's (``tools/bench/quality.py`` removes them)."""
 SEABEDS = ("sand", "ripples", "sassed")
 TEXTURES_ENV = "ATR_SAS_TEXTURES"
 DEFAULT_TEXTURES_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "sas_textures"
@@ -527,9 +531,10 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
         Folder (made if missing) that receives ``mission.atrlog``, ``truth.csv`` (targets),
         ``clutter.csv`` (rocks), ``one_leg.csv`` (objects imaged on one leg only) and
         ``scene.json`` (every parameter, the seed, per-leg nav offsets, generator version).
-        They are written beside it and moved in when the scene is complete, ``scene.json``
-        last: a failed or interrupted run leaves the folder as it was (without its old
-        ``scene.json`` if the moves had begun), never a half-written file.
+        They are written into a hidden folder inside it (``PARTIAL_PREFIX``) and moved in
+        when the scene is complete, ``scene.json`` last: a failed or interrupted run leaves
+        the folder as it was (without its old ``scene.json`` if the moves had begun), never a
+        half-written file; only a killed process leaves its hidden folder behind.
     seabed
         One of :data:`SEABEDS`.
     seed
@@ -572,11 +577,15 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                 for lg in lines}
 
     final = Path(out_dir)
-    final.parent.mkdir(parents=True, exist_ok=True)
-    # every file is written into a fresh sibling folder and moved into place when the whole
-    # scene is done (scene.json last): an interrupted or failed run leaves no half-written
-    # scene, and a reader that sees scene.json sees the rest whole
-    out = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-", dir=final.parent))
+    if final.exists() and not final.is_dir():
+        raise ValueError(f"{final} exists and is not a folder")
+    made = not final.exists()
+    final.mkdir(parents=True, exist_ok=True)
+    # every file is written into a fresh folder inside the scene's (so on its file system: the
+    # moves are renames) and moved into place when the whole scene is done, scene.json last:
+    # an interrupted or failed run leaves no half-written scene, and a reader that sees
+    # scene.json sees the rest whole
+    out = Path(tempfile.mkdtemp(prefix=PARTIAL_PREFIX, dir=final))
     try:
         name = f"heldout-{seabed}-{seed}"
         frame = MissionFrame("ltp", ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
@@ -645,13 +654,15 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
         }
         scene_json = out / "scene.json"
         scene_json.write_text(json.dumps(scene, indent=1, sort_keys=True) + "\n")
-        final.mkdir(exist_ok=True)
         (final / scene_json.name).unlink(missing_ok=True)  # an older scene there: never half old, half new
         for part in (atrlog, truth, clutter, one_leg_csv, scene_json):
             os.replace(part, final / part.name)
         out.rmdir()
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
+        if made:
+            with contextlib.suppress(OSError):
+                final.rmdir()  # the folder this call made, if nothing else is in it
         raise
     return HeldoutScene(out_dir=final, atrlog=final / atrlog.name, truth=final / truth.name,
                         clutter=final / clutter.name, one_leg=final / one_leg_csv.name,

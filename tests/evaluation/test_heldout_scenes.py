@@ -328,9 +328,9 @@ def test_independent_of_the_node_s_simulator_and_algorithms():
 
 
 def test_an_interrupted_scene_leaves_the_folder_as_it_was(tmp_path):
-    """Files are written beside the folder and moved in when the scene is done: a run stopped
-    midway (here by its progress callback, as Ctrl-C would) leaves no file of it, neither in the
-    folder nor beside it, and an earlier scene there stays whole."""
+    """Files are written into a hidden folder inside the scene's and moved in when the scene is
+    done: a run stopped midway (here by its progress callback, as Ctrl-C would) leaves no file
+    of it, and an earlier scene there stays whole."""
     out = tmp_path / "scene"
     generate_scene(out, seabed="sand", seed=3, **SMALL)
     before = {f: (out / f).read_bytes() for f in FILES}
@@ -342,7 +342,13 @@ def test_an_interrupted_scene_leaves_the_folder_as_it_was(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         generate_scene(out, seabed="sand", seed=4, progress=stop, **SMALL)
     assert {f: (out / f).read_bytes() for f in FILES} == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]  # no partial folder left beside it
+    assert sorted(p.name for p in out.iterdir()) == sorted(FILES)  # no partial folder left in it
     with pytest.raises(KeyboardInterrupt):
         generate_scene(tmp_path / "new", seabed="sand", seed=4, progress=stop, **SMALL)
-    assert not (tmp_path / "new").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["scene"]  # the folder it made is gone again
+    # a file where the folder should be: refused before any rendering
+    (tmp_path / "file").write_text("x")
+    calls = []
+    with pytest.raises(ValueError, match="not a folder"):
+        generate_scene(tmp_path / "file", seabed="sand", seed=4, progress=lambda *a: calls.append(a), **SMALL)
+    assert calls == [] and (tmp_path / "file").read_text() == "x"

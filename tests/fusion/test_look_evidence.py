@@ -196,3 +196,20 @@ def test_a_look_whose_detectors_favour_the_seabed_is_a_miss(frame, model, model_
     assert [d.leg for d in grid.detections] == [1, 1, 1, 1]  # the weak look left no detection record
     b_open, grid_open = bel(frame, model, legs, "look")
     assert 2 in {d.leg for d in grid_open.detections} and b_open > b_mixed
+
+
+def test_a_look_table_of_an_unknown_source_keeps_its_threshold(frame, model_z):
+    """Only a ``"look"`` table (every fired look detects) keeps looks below its tau; any other
+    source, one this code does not know included, makes them misses, as its P(y) counts them."""
+    import dataclasses
+
+    table = model_z.look(DETS)
+    future = dataclasses.replace(model_z, looks=type(model_z.looks)(
+        model_z.looks.tails, {"mf+lac+smf+z": dataclasses.replace(table, tau_source="look_future")},
+        model_z.looks.info, model_z.looks.lrs))
+    tau = model_z.tau
+    weak = {d: (tau[d] + 0.05 if d in ("lac", "z") else tau[d] - 1.0) for d in DETS}
+    legs = [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True, weak)]
+    b_future, _ = bel(frame, future, legs, "look")
+    b_miss, _ = bel(frame, model_z, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)], "look")
+    assert b_future == pytest.approx(b_miss, rel=1e-12)

@@ -46,6 +46,7 @@ import fcntl
 import json
 import math
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -439,6 +440,9 @@ def _lock_folder(out: Path):
         pid = fh.read().strip() or "?"
         fh.close()
         raise OSError(f"{out} is in use by another run (pid {pid}): wait for it, or give another --out") from None
+    except BaseException:
+        fh.close()
+        raise
     fh.seek(0)
     fh.truncate()
     fh.write(f"{os.getpid()}\n")
@@ -452,11 +456,10 @@ def _reusable(d: Path, seabed: str, seed: int, legs: int, length: float) -> bool
 
     try:
         scene = json.loads((d / "scene.json").read_text())
-    except (OSError, ValueError):
+        same = (scene["generator_version"] == GENERATOR_VERSION and scene["seed"] == seed and scene["legs"] == legs
+                and math.isclose(float(scene["leg_length_m"]), length) and scene["seabed"]["kind"] == seabed)
+    except (OSError, ValueError, TypeError, KeyError):
         return False
-    same = (scene.get("generator_version") == GENERATOR_VERSION and scene.get("seed") == seed
-            and scene.get("legs") == legs and math.isclose(float(scene.get("leg_length_m", math.nan)), length)
-            and (scene.get("seabed") or {}).get("kind") == seabed)
     return same and all((d / f).is_file() for f in ("mission.atrlog", "truth.csv", "one_leg.csv"))
 
 
@@ -473,12 +476,14 @@ def _write_whole(path: Path, text: str) -> None:
 
 def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv) -> int:
     from atr_node.errors import AtrError
-    from atr_node.evaluation.heldout import generate_scene
+    from atr_node.evaluation.heldout import PARTIAL_PREFIX, generate_scene
 
     results = []
     for sb in seabeds:
         for seed in seeds:
             d = out / f"{sb}-{seed}-{legs}x{length:g}"
+            for left in d.glob(PARTIAL_PREFIX + "*"):  # a killed generation's (this run holds the folder)
+                shutil.rmtree(left, ignore_errors=True)
             if not _reusable(d, sb, seed, legs, length):
                 try:
                     generate_scene(d, seabed=sb, seed=seed, legs=legs, leg_length_m=length)
@@ -511,12 +516,16 @@ def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv) 
         harness.record(f"recording {p.name}: replay and scoring", [float(recordings[-1]["seconds"])], clock="wall")
     text = markdown(results) + ("\n\n" + recordings_markdown(recordings) if recordings else "")
     print(text)
-    _write_whole(out / "quality.md", text + "\n")
-    if args.json:
-        _write_whole(Path(args.json), json.dumps({"command": "python tools/bench/quality.py "
-                                                  + " ".join(argv or sys.argv[1:]),
-                                                  "scenes": results, "recordings": recordings},
-                                                 indent=1, default=float) + "\n")
+    try:
+        _write_whole(out / "quality.md", text + "\n")
+        if args.json:
+            _write_whole(Path(args.json), json.dumps({"command": "python tools/bench/quality.py "
+                                                      + " ".join(argv or sys.argv[1:]),
+                                                      "scenes": results, "recordings": recordings},
+                                                     indent=1, default=float) + "\n")
+    except OSError as exc:
+        print(f"bench_quality: cannot write the report: {exc}", file=sys.stderr)
+        return 1
     return 0
 
 
