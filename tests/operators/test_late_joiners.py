@@ -269,12 +269,24 @@ def test_replay_command_serves_the_snapshot_on_the_port_after_publish(mission, t
 
 def test_joining_while_messages_stream_applies_each_exactly_once():
     """The clone pattern's race: messages published between the subscription and the snapshot
-    are held, and the ones the snapshot already holds are dropped by their seq."""
+    are held, and the ones the snapshot already holds are dropped by their seq. The snapshot
+    server answers only after the node has published 20 more messages since the request came
+    in, so the race happens on every run, not only on a loaded machine."""
     from atr_node.node.publisher import Publisher
     from atr_node.node.snapshot_endpoint import ContactView, SnapshotServer
 
+    asked = threading.Event()
+    since_asked = [0]
+
+    class SlowView(ContactView):
+        def snapshot(self):
+            if threading.current_thread().name == "atr-snapshot" and not asked.is_set():
+                asked.set()
+                wait_until(lambda: since_asked[0] >= 20, poll_s=0.002)
+            return super().snapshot()
+
     pub = Publisher("tcp://127.0.0.1:*")
-    view = ContactView()
+    view = SlowView()
     srv = SnapshotServer("tcp://127.0.0.1:*", view)
     messages = []
     for seq in range(1, 1501):
@@ -302,6 +314,8 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
                 wait_until(lambda: follower[0].stats.snapshot == "ok", poll_s=0.005)
             view.published(m)
             pub.contact(m)
+            if asked.is_set():
+                since_asked[0] += 1
             time.sleep(0.0005)
 
     t = threading.Thread(target=node)
@@ -325,4 +339,5 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
     assert sorted(seqs[:n_snap]) == sorted(m["seq"] for m in _live(messages[:s]).values())
     assert seqs[n_snap:] == list(range(s + 1, 1501))  # every later message once, in order
     assert fol.stats.gaps == 0 and fol.stats.contacts == 1500 - s
+    assert fol.stats.duplicates >= 20  # the race happened: held messages the snapshot already had
     assert {c["id"]: c for c in fol.book.contacts()} == _live(messages)
