@@ -25,7 +25,6 @@ Claims of the paper's figure 6, checked on each mission and reported as holding 
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -34,8 +33,6 @@ import numpy as np
 
 from ..calibration.model import PerformanceModel
 from ..config import Settings
-from ..geo import tile_geometry
-from ..io.atrlog import read_atrlog
 from ..node.service import write_contacts
 from .methods import SWEEP_FACTORS, Comparison, EvaluationRun, FusionResult, run_pipeline
 from .report import Mosaic, plot_belief, plot_mosaic, plot_roc

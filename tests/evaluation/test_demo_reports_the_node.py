@@ -9,7 +9,6 @@ stay readable (no empty panel, no matplotlib warning, labels that do not overlap
 from __future__ import annotations
 
 import json
-import math
 import subprocess
 import sys
 import warnings

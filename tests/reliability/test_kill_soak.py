@@ -84,7 +84,6 @@ def test_the_detection_worker_exits_when_the_node_is_killed(small_mission, tmp_p
     import os
     import signal
     import subprocess
-    import sys
     import time
 
     _, cfg, files = small_mission

@@ -3,7 +3,6 @@ sockets on loopback; the systemd unit's sandbox."""
 
 from __future__ import annotations
 
-import configparser
 import os
 import re
 import shutil

@@ -7,7 +7,6 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
 from atr_node.calibration.model import PerformanceModel
 from atr_node.config import Settings
