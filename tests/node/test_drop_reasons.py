@@ -12,7 +12,6 @@ import json
 import logging
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -24,6 +23,8 @@ from atr_node.node import wire
 from atr_node.node.publisher import Subscriber
 from atr_node.node.service import NodeService
 from atr_node.records.tile import Tile
+
+from ..waiting import wait_until
 
 
 @pytest.fixture(scope="module")
@@ -61,20 +62,21 @@ def test_heartbeat_carries_the_nav_drops(no_positions, caplog):
     sub = Subscriber(service.publisher.endpoint, topics=(wire.TOPIC_HEARTBEAT,))
     try:
         # the subscription is in place once a heartbeat gets through (ZeroMQ's slow joiner)
-        deadline = time.monotonic() + 60.0  # a wait for an event, not a timing assertion: generous under load
-        while sub.recv(timeout_s=0.05) is None:
-            assert time.monotonic() < deadline, "no heartbeat reached the subscriber"
-            service.publisher.heartbeat(service.heartbeat())
+        assert wait_until(lambda: sub.recv(timeout_s=0.05) is not None, poll_s=0.0,
+                          step=lambda: service.publisher.heartbeat(service.heartbeat())), \
+            "no heartbeat reached the subscriber"
         with caplog.at_level(logging.WARNING):
             assert service.run(iter_xtf_records(path)) is True
-        last = None
-        deadline = time.monotonic() + 60.0  # a wait for an event, not a timing assertion: generous under load
-        while time.monotonic() < deadline:
+        final: list[dict] = []
+
+        def final_heartbeat() -> bool:
             got = sub.recv(timeout_s=0.5)
             if got is not None and got[1]["tiles_in"] == n:
-                last = got[1]
-                break
-        assert last is not None, "the final heartbeat did not arrive"
+                final.append(got[1])
+            return bool(final)
+
+        assert wait_until(final_heartbeat, poll_s=0.0), "the final heartbeat did not arrive"
+        last = final[0]
         assert wire.validate_heartbeat(last) == []
         assert last["tiles_dropped"] == n and last["tiles_done"] == 0
         assert service.summary()["drop_reasons"] == {"no usable nav": n}

@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -21,6 +20,9 @@ from atr_node.io.atrlog import AtrLogWriter, read_atrlog
 from atr_node.node import wire
 from atr_node.node.pipeline import Pipeline
 from atr_node.node.service import NodeService
+
+from ..waiting import WAIT_S, wait_until
+
 
 @pytest.fixture(scope="module")
 def mission(small_mission):
@@ -52,7 +54,7 @@ from atr_node.node.publisher import Subscriber
 sub = Subscriber(sys.argv[1])
 out = open(sys.argv[2], "w")
 done, ready = sys.argv[4], sys.argv[5]
-deadline = time.monotonic() + 120  # a guard against a hang, not a timing assertion
+deadline = time.monotonic() + float(sys.argv[6])  # a guard against a hang (WAIT_S), not a timing assertion
 contacts = 0
 while time.monotonic() < deadline:
     got = sub.recv(timeout_s=0.5)
@@ -99,28 +101,24 @@ def test_hil_replay_through_pty_can_zmq_into_the_node(mission, tmp_path):
     ready = tmp_path / "subscribed"
     done = tmp_path / "published"
     sub = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, endpoint, str(received),
-                            str(Path(__file__).resolve().parents[2]), str(done), str(ready)])
+                            str(Path(__file__).resolve().parents[2]), str(done), str(ready), str(WAIT_S)])
     mux = LinkMux(links)
     node = threading.Thread(target=service.run_live, args=(mux,), daemon=True)
     node.start()
     # the subscriber has a heartbeat before the first contact can be published: an event, not a
     # guess at how long a loaded machine takes to start a Python process and subscribe
-    deadline = time.monotonic() + 120
-    while not ready.exists():
-        assert time.monotonic() < deadline and sub.poll() is None, "the subscriber never got a heartbeat"
-        time.sleep(0.05)
+    wait_until(lambda: ready.exists() or sub.poll() is not None)
+    assert ready.exists(), "the subscriber never got a heartbeat"
     player = HilPlayer(Paced(ReplayLink(files.atrlog), speed=40.0), nmea=nmea_out, can=can_out, sonar=tile_out)
     counts = player.run()
     try:
         # every tile in and nothing waiting in the worker (a live node keeps the last leg's last
         # rows until the next leg): no contact comes after this until the node stops
-        deadline = time.monotonic() + 120  # a guard against a hang, not a timing assertion
-        while not (service.pipeline.stats.tiles_in >= n_tiles and service.pipeline.queue_depth == 0):
-            assert time.monotonic() < deadline, "the node did not process every tile"
-            time.sleep(0.1)
+        assert wait_until(lambda: service.pipeline.stats.tiles_in >= n_tiles and service.pipeline.queue_depth == 0,
+                          poll_s=0.1), "the node did not process every tile"
         (tmp_path / "published.tmp").write_text(str(len(contacts)))
         os.replace(tmp_path / "published.tmp", done)
-        assert sub.wait(timeout=120) == 0
+        assert sub.wait(timeout=WAIT_S) == 0
     finally:
         service.stop()
         node.join(timeout=30)
@@ -165,12 +163,10 @@ def test_sigkill_mid_replay_then_restart_gives_the_same_contacts(mission, tmp_pa
     for attempt in range(3):  # kill at a few points, each after at least one new snapshot
         proc = subprocess.Popen(_replay_cmd(cfg, files.atrlog, out, state), stderr=subprocess.PIPE, text=True)
         before = (state / "CURRENT").read_text() if (state / "CURRENT").exists() else None
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None:
-            cur = (state / "CURRENT").read_text() if (state / "CURRENT").exists() else None
-            if cur is not None and cur != before:
-                break
-            time.sleep(0.02)
+        def current() -> str | None:
+            return (state / "CURRENT").read_text() if (state / "CURRENT").exists() else None
+
+        wait_until(lambda: proc.poll() is not None or current() not in (None, before), poll_s=0.02)
         if proc.poll() is None:
             proc.send_signal(signal.SIGKILL)
             proc.wait(timeout=30)

@@ -14,6 +14,9 @@ from atr_node.errors import AtrError
 from atr_node.io.atrlog import read_atrlog
 from atr_node.node.service import NodeService
 
+from ..waiting import WAIT_S, wait_until  # noqa: F401  (the operator tests import them from here)
+
+
 @pytest.fixture(scope="session")
 def mission(small_mission):
     return small_mission
@@ -118,26 +121,8 @@ def live_node(mission, tmp_path):
 # -- waiting for events, not for silence ----------------------------------------------------
 # A client that stops after S seconds without a message (``--until-silent``, ``follow(until_
 # silent_s=...)``) stops early when a loaded machine delays the node by S seconds, and the test
-# then misses messages. The tests below stop their clients when what they wait for has come.
-WAIT_S = 60.0
-"""A guard against a hang only: every wait ends at its event, long before this on any machine."""
-
-
-def wait_until(done: Callable[[], bool], timeout_s: float = WAIT_S, poll_s: float = 0.05,
-               step: Callable[[], object] | None = None) -> bool:
-    """Until ``done()`` holds (``step()`` between checks, else a sleep of ``poll_s``); False if
-    it never did. The deadline is a hang guard, never a timing assertion."""
-    import time
-
-    deadline = time.monotonic() + timeout_s
-    while not done():
-        if time.monotonic() >= deadline:
-            return False
-        if step is not None:
-            step()
-        else:
-            time.sleep(poll_s)
-    return True
+# then misses messages. The tests below stop their clients when what they wait for has come
+# (tests/waiting.py: the deadlines there are hang guards only).
 
 
 def follow_until(follower, done: Callable[[], bool], timeout_s: float = WAIT_S) -> bool:
@@ -163,12 +148,7 @@ class StreamLines:
 
     def wait_for(self, done: Callable[[str], bool], timeout_s: float = WAIT_S) -> None:
         """Until ``done(text so far)`` holds; fails with the stream's tail if it never does."""
-        import time
-
-        deadline = time.monotonic() + timeout_s
-        while not done(self.text):
-            assert time.monotonic() < deadline, f"never came; the stream ended with: {self.text[-2000:]}"
-            time.sleep(0.05)
+        assert wait_until(lambda: done(self.text), timeout_s), f"never came; the stream ended with: {self.text[-2000:]}"
 
     def close(self, timeout_s: float = WAIT_S) -> str:
         """The whole text, once the stream has ended."""

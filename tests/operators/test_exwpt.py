@@ -23,7 +23,7 @@ from atr_node.errors import AtrError
 from atr_node.node import wire
 from atr_node.operators.exwpt import ExwptOutput, format_exwpt
 
-from .conftest import WAIT_S, StreamLines, stop_client
+from .conftest import WAIT_S, StreamLines, stop_client, wait_until
 
 # Independent decoder: the layout of Chesapeake Times vol. 14 (July 2023), IEC 61162-1 framing.
 SENTENCE = re.compile(rb"^\$(EXWPT),([^*]*)\*([0-9A-F]{2})\r\n$")
@@ -142,10 +142,10 @@ def test_a_failed_port_loses_nothing_and_is_reopened():
     try:
         assert out.flush() == 2  # reopened
         conn, _ = server.accept()
-        conn.settimeout(60)  # a wait for the bytes already sent, not a timing assertion
+        conn.settimeout(WAIT_S)  # a wait for the bytes already sent, not a timing assertion
         data = b""
-        while data.count(b"\n") < 2:
-            data += conn.recv(4096)
+        while data.count(b"\n") < 2 and (chunk := conn.recv(4096)):  # b"": the sender closed
+            data += chunk
         conn.close()
     finally:
         server.close()
@@ -189,10 +189,8 @@ def test_exwpt_command_from_a_live_node_into_a_pty(live_node):
         stderr.wait_for(lambda t: "node up" in t)
         node.release()
         node.join()
-        deadline = time.monotonic() + WAIT_S  # until every sentence is on the pty (a hang guard)
         expected = [m for m in node.emitted if m["state"] != "withdrawn"]
-        while len(lines) < len(expected) and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(lambda: len(lines) >= len(expected))  # until every sentence is on the pty
         returncode = stop_client(proc)
     finally:
         stop.set()

@@ -59,28 +59,24 @@ def test_follower_started_mid_run_gets_every_live_contact_once(live_node, pause_
     node = live_node(pause_after=pause_at)
     early = Subscriber(node.endpoint)  # on the wire from the start: what the node sent, in order
     wire_log: list[dict] = []
-    deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
-    while not wire_log and time.monotonic() < deadline:  # up once a heartbeat arrives
+
+    def record() -> None:
         got = early.recv(0.1)
         if got is not None:
             wire_log.append(got[1])
+
+    wait_until(lambda: bool(wire_log), step=record)  # up once a heartbeat arrives
     before = _paused(node)
     applied: list[dict] = []
     fol = NodeFollower(node.endpoint, snapshot=derived_snapshot_endpoint(node.endpoint), on_contact=applied.append)
     try:
-        deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
-        while fol.stats.snapshot == "waiting" and time.monotonic() < deadline:
-            fol.poll(0.1)
+        follow_until(fol, lambda: fol.stats.snapshot != "waiting")
         assert fol.stats.snapshot == "ok"
         node.resume_feed.set()
         node.join()
         last = len(node.emitted)  # seq of the node's last message
         assert follow_until(fol, lambda: bool(applied) and applied[-1]["seq"] == last)
-        deadline = time.monotonic() + WAIT_S  # a guard against a hang: the wait ends at the last message
-        while not any(m.get("seq") == last for m in wire_log) and time.monotonic() < deadline:
-            got = early.recv(0.1)
-            if got is not None:
-                wire_log.append(got[1])
+        wait_until(lambda: any(m.get("seq") == last for m in wire_log), step=record)
     finally:
         fol.close()
         early.close()
@@ -220,12 +216,10 @@ def test_a_v1_node_without_the_endpoint_is_followed_after_one_warning(live_node,
     fol = NodeFollower(node.endpoint, snapshot=derived_snapshot_endpoint(node.endpoint), snapshot_timeout_s=0.5)
     try:
         with caplog.at_level(logging.WARNING, logger="atr_node.operators.stream"):
-            deadline = time.monotonic() + 60  # a wait, not a timing assertion: generous under load
-            while fol.stats.snapshot == "waiting" and time.monotonic() < deadline:
-                fol.poll(0.1)
+            follow_until(fol, lambda: fol.stats.snapshot != "waiting")
             # the subscription is up (a heartbeat got through) before the node goes on: what it
             # publishes next must all arrive, however slowly a loaded machine joins
-            assert fol.wait_heartbeat(60)
+            assert fol.wait_heartbeat(WAIT_S)
             node.resume_feed.set()
             node.join()
             assert follow_until(fol, lambda: fol.stats.contacts >= len(node.emitted) - len(before))
