@@ -18,7 +18,7 @@ from .. import __version__
 from ..config import CalibrationSettings, ThresholdSettings
 from . import looks as _looks
 from .looks import area_prior
-from .model import DetectorPerformance, PerformanceModel
+from .model import DetectorPerformance, PerformanceModel, look_detects
 from .responses import Responses, thresholds_on_nominal
 from .stats import confidence_curve, dobeck_threshold, pd_curve, range_edges
 
@@ -200,7 +200,7 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
             x_n = np.where(f_n, z_n, np.where(np.isfinite(z_n), below, np.nan))
             conf = confidence_curve(x_t, x_n, tau, prior_target=prior_target,
                                     n_points=calibration.confidence_points, smoothing=calibration.smoothing)
-            hit_t = f_t & (z_t > tau)
+            hit_t = f_t & look_detects(z_t, tau, source)
             det_t = np.where(np.isfinite(z_t), hit_t.astype(np.float64), np.nan)
             pyr = pd_curve(responses.target_range_m, det_t, 0.5, edges_m=edges_m, smoothing=calibration.smoothing)
             covered = np.isfinite(z_t)

@@ -45,6 +45,16 @@ FORMAT_VERSION = 1
 SHIPPED_MODEL = Path(__file__).resolve().parent.parent / "data" / "performance_model.json"
 
 
+def look_detects(z: np.ndarray | float, tau: float, tau_source: str) -> np.ndarray:
+    """Where a look that fired, with score ``z``, is a detection under a look table's rule: every
+    fired look with a score for ``tau_source = "look"`` (a look below every calibration score
+    still detects), else ``z > tau`` (``look_pd``, ``look_z``, and a source this code does not know,
+    whose P(y) most likely counted weaker looks as misses). The calibration's P(y) and the
+    node's evidence both ask this."""
+    z = np.asarray(z, dtype=np.float64)
+    return ~np.isnan(z) if tau_source == "look" else z > tau
+
+
 @dataclass(frozen=True)
 class DetectorPerformance:
     """One detector's estimates at its threshold ``tau``.
@@ -71,6 +81,10 @@ class DetectorPerformance:
     def pd_at(self, range_m: np.ndarray | float) -> np.ndarray:
         """Pd(r; tau), 0 outside the calibrated span."""
         return pd_at(self.pyr.edges_m, self.pyr.pd, range_m)
+
+    def detects(self, z: np.ndarray | float) -> np.ndarray:
+        """For a look table: :func:`look_detects` under this table's tau and source."""
+        return look_detects(z, self.tau, self.tau_source)
 
 
 @dataclass(frozen=True)

@@ -43,9 +43,7 @@ import csv
 import json
 import math
 import os
-import shutil
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -55,13 +53,13 @@ import numpy as np
 from scipy import ndimage
 
 from ..geo import MissionFrame
+from ..io.atomic import atomic_path
 from ..io.atrlog import AtrLogWriter
 from ..records.tile import SensorInfo, Tile, TileNav
 
 GENERATOR_VERSION = "1"
-PARTIAL_PREFIX = ".partial-"
-"""Hidden folder in a scene's folder that :func:`generate_scene` writes into before moving the
-files in; one left behind is a killed run's (``tools/bench/quality.py`` removes them)."""
+SCENE_FILES = ("mission.atrlog", "truth.csv", "clutter.csv", "one_leg.csv", "scene.json")
+"""The files of a scene, as :func:`generate_scene` writes them."""
 SEABEDS = ("sand", "ripples", "sassed")
 TEXTURES_ENV = "ATR_SAS_TEXTURES"
 DEFAULT_TEXTURES_DIR = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "sas_textures"
@@ -531,10 +529,11 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
         Folder (made if missing) that receives ``mission.atrlog``, ``truth.csv`` (targets),
         ``clutter.csv`` (rocks), ``one_leg.csv`` (objects imaged on one leg only) and
         ``scene.json`` (every parameter, the seed, per-leg nav offsets, generator version).
-        They are written into a hidden folder inside it (``PARTIAL_PREFIX``) and moved in
-        when the scene is complete, ``scene.json`` last: a failed or interrupted run leaves
-        the folder as it was (without its old ``scene.json`` if the moves had begun), never a
-        half-written file; only a killed process leaves its hidden folder behind.
+        Each is written under a hidden temporary name beside its final one
+        (:func:`~atr_node.io.atomic.atomic_path`) and renamed when the scene is complete,
+        ``scene.json`` last: a failed or interrupted run leaves the folder as it was (without
+        its old ``scene.json`` if the renames had begun), never a half-written file; only a
+        killed process leaves its temporary files behind.
     seabed
         One of :data:`SEABEDS`.
     seed
@@ -585,88 +584,86 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
     # moves are renames) and moved into place when the whole scene is done, scene.json last:
     # an interrupted or failed run leaves no half-written scene, and a reader that sees
     # scene.json sees the rest whole
-    out = Path(tempfile.mkdtemp(prefix=PARTIAL_PREFIX, dir=final))
+    # every file is written under a hidden temporary name in the scene's folder (atomic_path: on
+    # its file system, so the moves are renames) and renamed into place when the whole scene is
+    # done, scene.json last (entered first, left last): an interrupted or failed run leaves no
+    # half-written scene, and a reader that sees scene.json sees the rest whole
+    atrlog, truth, clutter, one_leg_csv, scene_json = (final / f for f in SCENE_FILES)
     try:
-        name = f"heldout-{seabed}-{seed}"
-        frame = MissionFrame("ltp", ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
-        dt = DX_M / SPEED_M_S
-        seq = {"port": 0, "stbd": 0}
-        total = sum(-(-lg.pings // TILE_PINGS) for lg in lines)
-        done = 0
-        atrlog = out / "mission.atrlog"
-        with AtrLogWriter(atrlog, flush_every=64) as writer:
-            for lg in lines:
-                shown = [o for o in objects if o.shown_on_leg in (None, lg.index)]
-                drop = np.array(dropouts[lg.index], dtype=np.int64)
-                for row0 in range(0, lg.pings, TILE_PINGS):
-                    rows = np.arange(row0, min(row0 + TILE_PINGS, lg.pings), dtype=np.float64)
-                    t = lg.t0_s + rows * dt
-                    alt = ALTITUDE_M + SWELL_M * np.sin(2 * np.pi * (t - EPOCH_S) / swell_period_s + swell_phase)
-                    along = rows * DX_M
-                    ee, en = lg.nav_error(along)
-                    lat, lon = frame.to_latlon(lg.start_e_m + along * lg.along[0] + ee,
-                                               lg.start_n_m + along * lg.along[1] + en)
-                    nav = TileNav(lat_deg=lat, lon_deg=lon, heading_deg=np.full(rows.size, lg.heading_deg % 360.0),
-                                  altitude_m=alt)
-                    lost = drop[(drop >= row0) & (drop < row0 + rows.size)] - row0
-                    for j, side in enumerate(("port", "stbd")):
-                        px = _render_side(lg, side, rows, shown, bed, alt, nu, nu_field, rng)
-                        px[lost] = np.nan
-                        tile = Tile(mission=name, leg=lg.index, side=side, seq=seq[side], pixels=px, kind="intensity",
-                                    range0_m=0.0, dr_m=DR_M, dx_m=DX_M, slant=False, ping_time=t, nav=nav, sensor=SENSOR)
-                        seq[side] += 1
-                        writer.write(float(t[-1]) + TILE_LATENCY_S + 0.01 * j, "sonar", tile.to_map())
-                    done += 1
-                    if progress is not None:
-                        progress(done, total)
+        with contextlib.ExitStack() as stack:
+            tmp = {p: stack.enter_context(atomic_path(p)) for p in (scene_json, atrlog, truth, clutter, one_leg_csv)}
+            name = f"heldout-{seabed}-{seed}"
+            frame = MissionFrame("ltp", ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
+            dt = DX_M / SPEED_M_S
+            seq = {"port": 0, "stbd": 0}
+            total = sum(-(-lg.pings // TILE_PINGS) for lg in lines)
+            done = 0
+            with AtrLogWriter(tmp[atrlog], flush_every=64) as writer:
+                for lg in lines:
+                    shown = [o for o in objects if o.shown_on_leg in (None, lg.index)]
+                    drop = np.array(dropouts[lg.index], dtype=np.int64)
+                    for row0 in range(0, lg.pings, TILE_PINGS):
+                        rows = np.arange(row0, min(row0 + TILE_PINGS, lg.pings), dtype=np.float64)
+                        t = lg.t0_s + rows * dt
+                        alt = ALTITUDE_M + SWELL_M * np.sin(2 * np.pi * (t - EPOCH_S) / swell_period_s + swell_phase)
+                        along = rows * DX_M
+                        ee, en = lg.nav_error(along)
+                        lat, lon = frame.to_latlon(lg.start_e_m + along * lg.along[0] + ee,
+                                                   lg.start_n_m + along * lg.along[1] + en)
+                        nav = TileNav(lat_deg=lat, lon_deg=lon, heading_deg=np.full(rows.size, lg.heading_deg % 360.0),
+                                      altitude_m=alt)
+                        lost = drop[(drop >= row0) & (drop < row0 + rows.size)] - row0
+                        for j, side in enumerate(("port", "stbd")):
+                            px = _render_side(lg, side, rows, shown, bed, alt, nu, nu_field, rng)
+                            px[lost] = np.nan
+                            tile = Tile(mission=name, leg=lg.index, side=side, seq=seq[side], pixels=px, kind="intensity",
+                                        range0_m=0.0, dr_m=DR_M, dx_m=DX_M, slant=False, ping_time=t, nav=nav, sensor=SENSOR)
+                            seq[side] += 1
+                            writer.write(float(t[-1]) + TILE_LATENCY_S + 0.01 * j, "sonar", tile.to_map())
+                        done += 1
+                        if progress is not None:
+                            progress(done, total)
 
-        targets = [o for o in objects if o.kind == "target"]
-        rocks = [o for o in objects if o.kind == "rock"]
-        one_leg = [o for o in objects if o.kind == "one_leg"]
-        truth, clutter, one_leg_csv = out / "truth.csv", out / "clutter.csv", out / "one_leg.csv"
-        _write_csv(truth, targets, lines, frame, ["burial_m", "size_m", "heading_deg"])
-        _write_csv(clutter, rocks, lines, frame, ["size_m", "target_like"])
-        _write_csv(one_leg_csv, one_leg, lines, frame, ["size_m"],
-                   first=["lat_deg", "lon_deg", "shape", "shown_on_leg", "covered_by_legs"])
-        scene = {
-            "generator": "atr_node.evaluation.heldout", "generator_version": GENERATOR_VERSION,
-            "use": "evaluation only: never calibrate on it or choose a setting with it",
-            "mission": name, "seabed": bed.info, "seed": int(seed), "legs": int(legs), "leg_length_m": _r(leg_length_m),
-            "frame": frame.to_dict(), "leg_spacing_m": LEG_SPACING_M, "nadir_gap_m": NADIR_GAP_M,
-            "max_range_m": MAX_RANGE_M, "dr_m": DR_M, "dx_m": DX_M, "tile_pings": TILE_PINGS,
-            "speed_m_s": SPEED_M_S, "altitude_m": ALTITUDE_M, "swell_m": SWELL_M,
-            "swell_period_s": _r(swell_period_s), "swell_phase_rad": _r(swell_phase),
-            "speckle": {"model": "K: mean * Gamma(nu, 1/nu) * Exp(1)", "nu": _r(nu), "nu_variation": NU_VARIATION},
-            "level": LEVEL, "noise_floor": NOISE_FLOOR,
-            "gain": "(0.55 + 0.45 min(r/15, 1)) (1 - 0.4 (r/60)^2), times (cos t_loc / cos t_flat)^2",
-            "sensor": {k: getattr(SENSOR, k) for k in ("frequency_hz", "bandwidth_hz", "tx_length_m", "rx_length_m",
-                                                      "n_rx", "sas")},
-            "per_leg": [{"leg": lg.index, "heading_deg": lg.heading_deg, "start_east_m": _r(lg.start_e_m),
-                         "start_north_m": _r(lg.start_n_m), "pings": lg.pings, "t0_s": _r(lg.t0_s),
-                         "nav_offset_east_m": _r(lg.nav_offset_m[0]), "nav_offset_north_m": _r(lg.nav_offset_m[1]),
-                         "nav_drift_east_m_per_100m": _r(lg.nav_drift_m_per_100m[0]),
-                         "nav_drift_north_m_per_100m": _r(lg.nav_drift_m_per_100m[1]),
-                         "nav_wobble_m": _r(lg.nav_wobble[0]), "nav_wobble_wavelength_m": _r(lg.nav_wobble[1]),
-                         "nav_wobble_phase_rad": _r(lg.nav_wobble[2]),
-                         "dropout_pings": dropouts[lg.index]} for lg in lines],
-            "counts": {"tiles": 2 * total, "targets": len(targets), "rocks": len(rocks),
-                       "rocks_target_like": sum(1 for o in rocks if o.params["target_like"]), "one_leg": len(one_leg)},
-        }
-        scene_json = out / "scene.json"
-        scene_json.write_text(json.dumps(scene, indent=1, sort_keys=True) + "\n")
-        (final / scene_json.name).unlink(missing_ok=True)  # an older scene there: never half old, half new
-        for part in (atrlog, truth, clutter, one_leg_csv, scene_json):
-            os.replace(part, final / part.name)
-        out.rmdir()
+            targets = [o for o in objects if o.kind == "target"]
+            rocks = [o for o in objects if o.kind == "rock"]
+            one_leg = [o for o in objects if o.kind == "one_leg"]
+            _write_csv(tmp[truth], targets, lines, frame, ["burial_m", "size_m", "heading_deg"])
+            _write_csv(tmp[clutter], rocks, lines, frame, ["size_m", "target_like"])
+            _write_csv(tmp[one_leg_csv], one_leg, lines, frame, ["size_m"],
+                       first=["lat_deg", "lon_deg", "shape", "shown_on_leg", "covered_by_legs"])
+            scene = {
+                "generator": "atr_node.evaluation.heldout", "generator_version": GENERATOR_VERSION,
+                "use": "evaluation only: never calibrate on it or choose a setting with it",
+                "mission": name, "seabed": bed.info, "seed": int(seed), "legs": int(legs), "leg_length_m": _r(leg_length_m),
+                "frame": frame.to_dict(), "leg_spacing_m": LEG_SPACING_M, "nadir_gap_m": NADIR_GAP_M,
+                "max_range_m": MAX_RANGE_M, "dr_m": DR_M, "dx_m": DX_M, "tile_pings": TILE_PINGS,
+                "speed_m_s": SPEED_M_S, "altitude_m": ALTITUDE_M, "swell_m": SWELL_M,
+                "swell_period_s": _r(swell_period_s), "swell_phase_rad": _r(swell_phase),
+                "speckle": {"model": "K: mean * Gamma(nu, 1/nu) * Exp(1)", "nu": _r(nu), "nu_variation": NU_VARIATION},
+                "level": LEVEL, "noise_floor": NOISE_FLOOR,
+                "gain": "(0.55 + 0.45 min(r/15, 1)) (1 - 0.4 (r/60)^2), times (cos t_loc / cos t_flat)^2",
+                "sensor": {k: getattr(SENSOR, k) for k in ("frequency_hz", "bandwidth_hz", "tx_length_m", "rx_length_m",
+                                                          "n_rx", "sas")},
+                "per_leg": [{"leg": lg.index, "heading_deg": lg.heading_deg, "start_east_m": _r(lg.start_e_m),
+                             "start_north_m": _r(lg.start_n_m), "pings": lg.pings, "t0_s": _r(lg.t0_s),
+                             "nav_offset_east_m": _r(lg.nav_offset_m[0]), "nav_offset_north_m": _r(lg.nav_offset_m[1]),
+                             "nav_drift_east_m_per_100m": _r(lg.nav_drift_m_per_100m[0]),
+                             "nav_drift_north_m_per_100m": _r(lg.nav_drift_m_per_100m[1]),
+                             "nav_wobble_m": _r(lg.nav_wobble[0]), "nav_wobble_wavelength_m": _r(lg.nav_wobble[1]),
+                             "nav_wobble_phase_rad": _r(lg.nav_wobble[2]),
+                             "dropout_pings": dropouts[lg.index]} for lg in lines],
+                "counts": {"tiles": 2 * total, "targets": len(targets), "rocks": len(rocks),
+                           "rocks_target_like": sum(1 for o in rocks if o.params["target_like"]), "one_leg": len(one_leg)},
+            }
+            tmp[scene_json].write_text(json.dumps(scene, indent=1, sort_keys=True) + "\n")
+            scene_json.unlink(missing_ok=True)  # an older scene there: never half old, half new
     except BaseException:
-        shutil.rmtree(out, ignore_errors=True)
         if made:
             with contextlib.suppress(OSError):
                 final.rmdir()  # the folder this call made, if nothing else is in it
         raise
-    return HeldoutScene(out_dir=final, atrlog=final / atrlog.name, truth=final / truth.name,
-                        clutter=final / clutter.name, one_leg=final / one_leg_csv.name,
-                        scene_json=final / scene_json.name, seabed=seabed, seed=int(seed), legs=int(legs),
+    return HeldoutScene(out_dir=final, atrlog=atrlog, truth=truth, clutter=clutter, one_leg=one_leg_csv,
+                        scene_json=scene_json, seabed=seabed, seed=int(seed), legs=int(legs),
                         tiles=2 * total, targets=len(targets), rocks=len(rocks), one_leg_objects=len(one_leg),
                         nu=_r(nu))
 

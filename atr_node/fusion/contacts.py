@@ -353,13 +353,13 @@ def detection_position(detections: Sequence[DetectionRecord], idx: Sequence[int]
     return e, n, math.sqrt(0.5 * var + float(nav_sigma_m) ** 2)
 
 
-def _peak_near(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, bel: np.ndarray, cells: np.ndarray, ce: float,
-               cn: float, radius_m: float) -> int:
-    """The cell of ``cells`` (indices, in the extraction's order) with the highest Bel(T) within
-    ``radius_m`` of (ce, cn), the last such on a tie; the nearest cell (the first on a tie) when
-    none is that close, and always with ``radius_m = 0`` (:func:`_read_cell`)."""
-    e, n = grid.cell_centre(iy[cells], ix[cells])
-    d2 = (e - ce) ** 2 + (n - cn) ** 2
+def _peak_near(e: np.ndarray, n: np.ndarray, bel: np.ndarray, cells: np.ndarray, ce: float, cn: float,
+               radius_m: float) -> int:
+    """The cell of ``cells`` (indices, in the extraction's order; ``e, n`` every cell's centre)
+    with the highest Bel(T) within ``radius_m`` of (ce, cn), the last such on a tie; the nearest
+    cell (the first on a tie) when none is that close, and always with ``radius_m = 0``
+    (:func:`_read_cell`)."""
+    d2 = (e[cells] - ce) ** 2 + (n[cells] - cn) ** 2
     near = cells[d2 <= radius_m * radius_m] if radius_m > 0 else cells[:0]
     if not near.size:
         return int(cells[int(np.argmin(d2))])
@@ -367,8 +367,8 @@ def _peak_near(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, bel: np.ndarr
     return int(near[np.flatnonzero(b == b.max())[-1]])
 
 
-def _read_cell(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, bel: np.ndarray, reg: np.ndarray,
-               cells: np.ndarray, region: int | None, ce: float, cn: float, sigma_m: float) -> int:
+def _read_cell(e: np.ndarray, n: np.ndarray, bel: np.ndarray, reg: np.ndarray, cells: np.ndarray,
+               region: int | None, ce: float, cn: float, sigma_m: float) -> int:
     """The cell a component with detections reads its Bel(T), pl, m_theta and legs at, from its
     ``cells`` (indices in the extraction's order, ascending) and position (ce, cn):
 
@@ -388,10 +388,10 @@ def _read_cell(grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, bel: np.ndarr
 
     Both extraction paths read through here, so they agree message for message."""
     if region is None:
-        return _peak_near(grid, iy, ix, bel, cells, ce, cn, sigma_m)
+        return _peak_near(e, n, bel, cells, ce, cn, sigma_m)
     if not cells.size:
         cells = np.flatnonzero(reg == region)
-    return _peak_near(grid, iy, ix, bel, cells, ce, cn, 0.0)
+    return _peak_near(e, n, bel, cells, ce, cn, 0.0)
 
 
 def _comp_cells(lab: np.ndarray, n_comp: int) -> list[np.ndarray]:
@@ -605,7 +605,8 @@ class ContactTracker:
         n_reg, reg = label_cells(iy, ix)
         det_reg = self._detection_labels(grid, iy, ix, reg)
         own: dict[int, int] = {}
-        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, own=own)
+        e, n = grid.cell_centre(iy, ix)  # once per extraction: the groups' cells and each contact's read
+        lab, n_comp, det_lab = self._split(grid, e, n, reg, n_reg, det_reg, own=own)
         # detections of each component: one stable sort, not a scan of all detections per
         # component (same members, same order)
         d_order = np.argsort(det_lab, kind="stable")
@@ -618,7 +619,7 @@ class ContactTracker:
         for j, m in enumerate(members):
             if m:
                 ce, cn, sigma = contact_position(grid.detections, m, nav_sigma_m=self.fusion.nav_sigma_m)
-                p = _read_cell(grid, iy, ix, bel, reg, cells_of[j], own.get(j), ce, cn, sigma)
+                p = _read_cell(e, n, bel, reg, cells_of[j], own.get(j), ce, cn, sigma)
                 comps.append(_Component(j, ce, cn, sigma, float(bel[p]), float(mn[p]), float(mth[p]), int(iy[p]),
                                         int(ix[p]), m))
         comps = self._merge_objects(grid, comps)
@@ -758,7 +759,8 @@ class ContactTracker:
             det_idx, det_reg = det_idx[hit], det_reg[hit]
         extras: list[tuple[int, int]] = []
         own: dict[int, int] = {}
-        lab, n_comp, det_lab = self._split(grid, iy, ix, reg, n_reg, det_reg, det_idx, extras, own)
+        e, n = grid.cell_centre(iy, ix)  # once per extraction: the groups' cells and each contact's read
+        lab, n_comp, det_lab = self._split(grid, e, n, reg, n_reg, det_reg, det_idx, extras, own)
         # each component's cells in the full extraction's order (a subset of its cells): the
         # same cells read
         cells_of = _comp_cells(lab, n_comp)
@@ -781,7 +783,7 @@ class ContactTracker:
                              else (math.nan, math.nan, math.nan))
             # (without detections: its first cell, for the bookkeeping only)
             cells = cells_of[j]
-            p = (_read_cell(grid, iy, ix, bel, reg, cells, own.get(j), ce, cn, sigma) if dl
+            p = (_read_cell(e, n, bel, reg, cells, own.get(j), ce, cn, sigma) if dl
                  else int(cells[0]) if cells.size else 0)
             comps.append(_Component(key, ce, cn, sigma, float(bel[p]), float(mn[p]),
                                     float(mth[p]), int(iy[p]), int(ix[p]), dl))
@@ -947,7 +949,7 @@ class ContactTracker:
         self._merged = cache
         return [merged.get(j, c) for j, c in enumerate(comps) if j not in gone]
 
-    def _split(self, grid: EvidenceGrid, iy: np.ndarray, ix: np.ndarray, reg: np.ndarray, n_reg: int,
+    def _split(self, grid: EvidenceGrid, e: np.ndarray, n: np.ndarray, reg: np.ndarray, n_reg: int,
                det_reg: np.ndarray, det_idx: np.ndarray | None = None,
                extras: list[tuple[int, int]] | None = None,
                own: dict[int, int] | None = None) -> tuple[np.ndarray, int, np.ndarray]:
@@ -972,7 +974,6 @@ class ContactTracker:
         de = np.array([r.east_m for r in dets])
         dn = np.array([r.north_m for r in dets])
         conf = np.array([max(r.confidence, 1e-12) for r in dets])
-        e, n = grid.cell_centre(iy, ix)
         kept: dict[bytes, tuple[int, np.ndarray]] = {}  # the groupings of today's regions only
         # cells and detections of each region from one stable sort each (same members, same
         # ascending order as a scan per region)

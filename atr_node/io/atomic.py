@@ -20,6 +20,12 @@ def temporary_name(path: str | os.PathLike[str]) -> Path:
     return p.with_name(f".{p.name}.tmp-{os.getpid()}")
 
 
+def leftover_temporaries(path: str | os.PathLike[str]) -> list[Path]:
+    """Temporary files of ``path`` that writers killed mid-write left behind (any process)."""
+    p = Path(path)
+    return sorted(p.parent.glob(f".{p.name}.tmp-*"))
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path to write ``path``'s content to; rename it over ``path`` when the

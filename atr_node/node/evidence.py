@@ -96,11 +96,8 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
         for (d, x, z), k in zip(scored, keep):
             if not k:
                 continue
-            if table.tau_source != "look" and not z > table.tau:
-                # a look this weak is a miss (calibration.look_pd, look_z_min): no T mass here.
-                # Only a "look" table (every fired look detects) keeps looks below its tau; a
-                # source this code does not know gets the rule its P(y) was most likely made with
-                continue
+            if not table.detects(z):
+                continue  # a look this weak is a miss (calibration.look_pd, look_z_min): no T mass here
             c = float(np.clip(table.confidence_at(z), 0.0, 1.0))
             dets.append(DetectionEvidence.from_detection(x, c, source=d))
         pd = _pd(table.pd_at(ranges_m)) if missed else np.zeros(ranges_m.size)

@@ -52,7 +52,7 @@ def test_tail_table_is_the_jeffreys_survival_at_its_knots(rng):
     assert tail_table(np.full(7, np.nan)).u.tolist() == [0.0, 0.0]  # no response: tells nothing
 
 
-@pytest.mark.parametrize("look_z_min", [-math.inf, 0.0, 2.0])  # 2: above z_tau, the floor decides
+@pytest.mark.parametrize("look_z_min", [-math.inf, -1.0, 0.0, 2.0])  # -1: look_pd 0.9 decides, 2: the floor
 @pytest.mark.parametrize("look_pd", [0.0, 0.9, 0.95, 0.99])  # 0.99: more than the fired share, rule off
 def test_look_pd_is_the_share_of_targets_on_which_the_look_detected(rng, look_pd, look_z_min):
     """P(y) of a look: injected targets on which a detector fired and, with look_pd > 0, the
@@ -106,6 +106,8 @@ def test_look_pd_is_the_share_of_targets_on_which_the_look_detected(rng, look_pd
         assert table.pd_at_tau == pytest.approx(fired.mean(), abs=1e-12)
     if look_z_min == 2.0:
         assert floors == 3  # the floor decided every table: the test reached its branch
+    if look_z_min == -1.0 and look_pd == 0.9:
+        assert floors < 3  # look_pd's threshold above the floor decided some table: that branch too
 
 
 def test_one_detector_look_is_that_detectors_own_table(rng):

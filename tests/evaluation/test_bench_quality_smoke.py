@@ -125,7 +125,9 @@ def test_one_run_per_folder_and_only_finished_scenes_are_reused(tmp_path, capsys
     scene = out / "sand-7-2x60"
     scene.mkdir()
     (scene / "mission.atrlog").write_bytes(b"ATRLOG half")
+    (scene / ".truth.csv.tmp-999999").write_text("a killed run's")  # removed under the lock
     assert bench_quality.main(args) == 0
+    assert not list(scene.glob(".*"))
     meta = json.loads((scene / "scene.json").read_text())
     assert meta["seed"] == 7 and (scene / "mission.atrlog").stat().st_size > 1000
     first = (scene / "mission.atrlog").read_bytes()
@@ -136,4 +138,11 @@ def test_one_run_per_folder_and_only_finished_scenes_are_reused(tmp_path, capsys
     assert (scene / "mission.atrlog").read_bytes() == first  # made again, byte for byte the same scene
     mtime = (scene / "mission.atrlog").stat().st_mtime_ns
     assert bench_quality.main(args) == 0 and (scene / "mission.atrlog").stat().st_mtime_ns == mtime  # reused
+    # a scene it cannot make (a file where its folder goes): one line, exit 1, nothing written
+    (out / "sand-8-2x60").write_text("x")
+    capsys.readouterr()
+    assert bench_quality.main(args + ["--seeds", "8", "--json", str(tmp_path / "q8.json")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "sand-8-2x60" in err and "not a folder" in err
+    assert not (tmp_path / "q8.json").exists()
     assert bench_quality.main(args + ["--seeds", "x7"]) == 2 and "expected comma-separated integers" in capsys.readouterr().err

@@ -404,12 +404,12 @@ def test_peak_near_reads_within_the_radius_or_the_nearest_cell():
     step = float(np.hypot(e[1] - e[0], n[1] - n[0]))
     cells = np.arange(5)
     # within one step of cell 1: cells 0-2; the highest there is cell 0 (0.9)
-    assert _peak_near(grid, iy, ix, bel, cells, ce, cn, 1.01 * step) == 0
+    assert _peak_near(e, n, bel, cells, ce, cn, 1.01 * step) == 0
     # within two steps: cell 3 (0.95) too; cell 4 (0.99) is far
-    assert _peak_near(grid, iy, ix, bel, cells, ce, cn, 2.01 * step) == 3
+    assert _peak_near(e, n, bel, cells, ce, cn, 2.01 * step) == 3
     # a tie goes to the last such cell
-    assert _peak_near(grid, iy, ix, np.array([0.5, 0.7, 0.7, 0.1, 0.1]), cells, ce, cn, 1.01 * step) == 2
+    assert _peak_near(e, n, np.array([0.5, 0.7, 0.7, 0.1, 0.1]), cells, ce, cn, 1.01 * step) == 2
     # none within the radius: the nearest cell
     far_e, far_n = ce + 1000.0, cn + 1000.0
     d = np.hypot(e - far_e, n - far_n)
-    assert _peak_near(grid, iy, ix, bel, cells, far_e, far_n, 1.0) == int(np.argmin(d))
+    assert _peak_near(e, n, bel, cells, far_e, far_n, 1.0) == int(np.argmin(d))

@@ -174,6 +174,17 @@ def test_without_the_look_rule_every_fired_look_detects(frame, model):
     assert len(grid.detections) == 1 and b == pytest.approx(float(table.confidence_at(z)), rel=1e-12) and b > 0
 
 
+STRONG_THEN_MISS = [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)]
+"""A strong look on leg 1, leg 2 covering POINT at 35 m without a detection."""
+
+
+def _strong_then_weak(model) -> list[tuple]:
+    """A strong look on leg 1, then leg 2 with LAC and Z just over their thresholds and MF and
+    SMF well under theirs: a look whose detectors together favour the seabed."""
+    weak = {d: (model.tau[d] + 0.05 if d in ("lac", "z") else model.tau[d] - 1.0) for d in DETS}
+    return [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True, weak)]
+
+
 def test_a_look_whose_detectors_favour_the_seabed_is_a_miss(frame, model, model_z):
     """z <= 0 (calibration.look_z_min, the default): the detectors' log likelihood ratios sum
     to evidence for the seabed. Such a look gives no T mass and its miss stands, so an object
@@ -181,14 +192,13 @@ def test_a_look_whose_detectors_favour_the_seabed_is_a_miss(frame, model, model_
     (the same responses, ``model``) the weak look is a detection and the miss is gone."""
     table = model_z.look(DETS)
     assert table.tau_source == "look_z" and table.tau == 0.0
-    tau = model_z.tau
-    weak = {d: (tau[d] + 0.05 if d in ("lac", "z") else tau[d] - 1.0) for d in DETS}
+    legs = _strong_then_weak(model_z)
+    weak = legs[1][4]
     z = model_z.look_score({d: np.float64(v) for d, v in weak.items()}, DETS)
     assert z <= 0.0 < model_z.look_score({d: np.float64(4.5) for d in DETS}, DETS)
     assert z > model.look(DETS).tau  # the same look detects without the floor
-    legs = [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True, weak)]
     b_mixed, grid = bel(frame, model_z, legs, "look")
-    b_miss, _ = bel(frame, model_z, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)], "look")
+    b_miss, _ = bel(frame, model_z, STRONG_THEN_MISS, "look")
     c = float(table.confidence_at(model_z.look_score({d: np.float64(4.5) for d in DETS}, DETS)))
     q = float(table.pd_at(35.0))  # leg 2 sees POINT at 35 m (as in the one-leg test above)
     assert b_mixed == pytest.approx(b_miss, rel=1e-12)
@@ -207,9 +217,6 @@ def test_a_look_table_of_an_unknown_source_keeps_its_threshold(frame, model_z):
     future = dataclasses.replace(model_z, looks=type(model_z.looks)(
         model_z.looks.tails, {"mf+lac+smf+z": dataclasses.replace(table, tau_source="look_future")},
         model_z.looks.info, model_z.looks.lrs))
-    tau = model_z.tau
-    weak = {d: (tau[d] + 0.05 if d in ("lac", "z") else tau[d] - 1.0) for d in DETS}
-    legs = [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True, weak)]
-    b_future, _ = bel(frame, future, legs, "look")
-    b_miss, _ = bel(frame, model_z, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)], "look")
+    b_future, _ = bel(frame, future, _strong_then_weak(model_z), "look")
+    b_miss, _ = bel(frame, model_z, STRONG_THEN_MISS, "look")
     assert b_future == pytest.approx(b_miss, rel=1e-12)

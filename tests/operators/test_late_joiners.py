@@ -68,7 +68,8 @@ def test_follower_started_mid_run_gets_every_live_contact_once(live_node, pause_
     wait_until(lambda: bool(wire_log), step=record)  # up once a heartbeat arrives
     before = _paused(node)
     applied: list[dict] = []
-    fol = NodeFollower(node.endpoint, snapshot=derived_snapshot_endpoint(node.endpoint), on_contact=applied.append)
+    fol = NodeFollower(node.endpoint, snapshot=derived_snapshot_endpoint(node.endpoint), on_contact=applied.append,
+                       snapshot_timeout_s=WAIT_S)
     try:
         follow_until(fol, lambda: fol.stats.snapshot != "waiting")
         assert fol.stats.snapshot == "ok"
@@ -304,6 +305,7 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
                     t=time.time(), uptime_s=1.0, tiles_in=0, tiles_done=0, tiles_dropped=0, tiles_rejected=0,
                     queue_depth=0, p50_ms=0.0, p99_ms=0.0, mode="nominal")) or follower[0].stats.heartbeats > 0,
                     poll_s=0.005)
+                asked.wait(WAIT_S)  # the snapshot is asked for: the 1200 messages to come follow the request
             if m["seq"] == 1500:  # the snapshot is served before the last message, on any machine
                 wait_until(lambda: follower[0].stats.snapshot == "ok", poll_s=0.005)
             view.published(m)
@@ -317,7 +319,7 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
     applied: list[dict] = []
     try:
         wait_until(lambda: view.snapshot()[0] >= 299, poll_s=0.005)
-        fol = NodeFollower(pub.endpoint, snapshot=srv.endpoint, on_contact=applied.append)
+        fol = NodeFollower(pub.endpoint, snapshot=srv.endpoint, on_contact=applied.append, snapshot_timeout_s=WAIT_S)
         follower.append(fol)
         joined.set()
         assert follow_until(fol, lambda: bool(applied) and applied[-1]["seq"] == 1500)

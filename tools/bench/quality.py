@@ -46,7 +46,6 @@ import fcntl
 import json
 import math
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -452,7 +451,7 @@ def _lock_folder(out: Path):
 
 def _reusable(d: Path, seabed: str, seed: int, legs: int, length: float) -> bool:
     """A scene folder a finished run of this generator made for these parameters."""
-    from atr_node.evaluation.heldout import GENERATOR_VERSION
+    from atr_node.evaluation.heldout import GENERATOR_VERSION, SCENE_FILES
 
     try:
         scene = json.loads((d / "scene.json").read_text())
@@ -460,30 +459,30 @@ def _reusable(d: Path, seabed: str, seed: int, legs: int, length: float) -> bool
                 and math.isclose(float(scene["leg_length_m"]), length) and scene["seabed"]["kind"] == seabed)
     except (OSError, ValueError, TypeError, KeyError):
         return False
-    return same and all((d / f).is_file() for f in ("mission.atrlog", "truth.csv", "one_leg.csv"))
+    return same and all((d / f).is_file() for f in SCENE_FILES)
 
 
 def _write_whole(path: Path, text: str) -> None:
-    """``text`` into ``path`` by a sibling file and a rename: never half-written."""
+    """``text`` into ``path``, never half-written (:func:`atr_node.io.atomic.atomic_open`)."""
+    from atr_node.io.atomic import atomic_open
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_open(path) as fh:
+        fh.write(text)
 
 
 def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv) -> int:
     from atr_node.errors import AtrError
-    from atr_node.evaluation.heldout import PARTIAL_PREFIX, generate_scene
+    from atr_node.evaluation.heldout import SCENE_FILES, generate_scene
+    from atr_node.io.atomic import leftover_temporaries
 
     results = []
     for sb in seabeds:
         for seed in seeds:
             d = out / f"{sb}-{seed}-{legs}x{length:g}"
-            for left in d.glob(PARTIAL_PREFIX + "*"):  # a killed generation's (this run holds the folder)
-                shutil.rmtree(left, ignore_errors=True)
+            for f in SCENE_FILES:  # a killed generation's temporary files (this run holds the folder)
+                for left in leftover_temporaries(d / f):
+                    left.unlink(missing_ok=True)
             if not _reusable(d, sb, seed, legs, length):
                 try:
                     generate_scene(d, seabed=sb, seed=seed, legs=legs, leg_length_m=length)
