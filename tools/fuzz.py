@@ -798,7 +798,9 @@ def _run_atheris(names: list[str], n: int, args: argparse.Namespace) -> int:
         k = max(n // 10, 10) if name == "pipeline" else n
         cmd = [sys.executable, __file__, "--engine", "atheris", "--parsers", name, "--inputs", str(k),
                "--seed", str(args.seed), "--timeout-s", str(args.timeout_s), "--crash-dir", str(findings)]
-        r = subprocess.run(cmd, env={**os.environ, "ATR_FUZZ_ATHERIS_CHILD": "1"}, capture_output=True, text=True)
+        # libFuzzer ends the child with exit(), past any clean-up of its own: the parent owns its folder
+        with tempfile.TemporaryDirectory(prefix="atr-fuzz-") as work:
+            r = subprocess.run(cmd, env={**os.environ, "ATR_FUZZ_ATHERIS_CHILD": work}, capture_output=True, text=True)
         tail = [ln for ln in r.stderr.splitlines() if "Done" in ln or "ERROR" in ln or "Test unit written" in ln]
         print(f"{name:<12}{k:>8}  {'no finding' if r.returncode == 0 else f'FOUND (exit {r.returncode})'}"
               f"  {tail[-1] if tail else ''}")
@@ -834,10 +836,10 @@ def main(argv: list[str] | None = None) -> int:
 
     n = 300 if args.quick else args.inputs
     if args.engine == "atheris":
-        if os.environ.get("ATR_FUZZ_ATHERIS_CHILD"):
-            with tempfile.TemporaryDirectory(prefix="atr-fuzz-") as tmp:
-                fuzz_atheris(names[0], n, seed=args.seed, timeout_s=args.timeout_s, tmp=Path(tmp),
-                             findings=Path(args.crash_dir or "."))
+        work = os.environ.get("ATR_FUZZ_ATHERIS_CHILD")
+        if work:  # the parent's folder, removed by the parent once libFuzzer has ended this process
+            fuzz_atheris(names[0], n, seed=args.seed, timeout_s=args.timeout_s, tmp=Path(work),
+                         findings=Path(args.crash_dir or "."))
         return _run_atheris(names, n, args)
     results = []
     logging.disable(logging.CRITICAL)  # rejections are counted, not logged

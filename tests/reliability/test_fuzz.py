@@ -284,7 +284,13 @@ def test_atheris_engine_smoke(tmp_path):
     import subprocess
     import sys
 
+    import os
+
+    scratch = tmp_path / "tmp"  # the children's working folders go here, and must be gone after
+    scratch.mkdir()
     r = subprocess.run([sys.executable, str(fz.__file__), "--engine", "atheris", "--parsers", "nmea,config",
-                        "--inputs", "200", "--crash-dir", str(tmp_path)], capture_output=True, text=True, timeout=300)
+                        "--inputs", "200", "--crash-dir", str(tmp_path / "findings")], capture_output=True, text=True,
+                       timeout=300, env={**os.environ, "TMPDIR": str(scratch)})
     assert r.returncode == 0, r.stdout + r.stderr[-3000:]
     assert r.stdout.count("no finding") == 2
+    assert list(scratch.iterdir()) == []  # libFuzzer ends each child with exit(): its folder was left behind
