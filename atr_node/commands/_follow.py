@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 from typing import Any
 
 from ..errors import AtrError
@@ -28,6 +29,19 @@ def add_snapshot_argument(parser: argparse.ArgumentParser) -> None:
                         help="the node's snapshot endpoint, for the contacts published before this tool "
                              "started (ICD v1.1; default: the port after the PUB endpoint, or "
                              "links.snapshot_endpoint of --config; 'none' = do not ask)")
+    parser.add_argument("--snapshot-timeout", metavar="S", type=_seconds, default=2.0,
+                        help="how long to wait for the snapshot before following without it (default 2 s)")
+
+
+def _seconds(text: str) -> float:
+    """A finite number of seconds > 0, for argparse (a bad one is a usage error naming the option)."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds > 0, got {text!r}")
+    return v
 
 
 def snapshot_from_args(args: argparse.Namespace, settings: Any = None) -> str | None:

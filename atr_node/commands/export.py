@@ -73,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with NodeFollower(args.endpoint, curve=curve_from_args(args), snapshot=snapshot_from_args(args)) as follower:
+    with NodeFollower(args.endpoint, curve=curve_from_args(args), snapshot=snapshot_from_args(args),
+                      snapshot_timeout_s=args.snapshot_timeout) as follower:
         last = [time.monotonic()]
         announce = follower.announcer("atr-node export")
 

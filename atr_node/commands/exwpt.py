@@ -59,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        with NodeFollower(endpoint, on_contact=out.offer, curve=curve_from_args(args), snapshot=snapshot) as follower:
+        with NodeFollower(endpoint, on_contact=out.offer, curve=curve_from_args(args), snapshot=snapshot,
+                          snapshot_timeout_s=args.snapshot_timeout) as follower:
             announce = follower.announcer("atr-node exwpt")
 
             def tick() -> None:

@@ -49,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
     endpoint = follow_endpoint(args, settings)
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    with NodeFollower(endpoint, curve=curve_from_args(args), snapshot=snapshot_from_args(args, settings)) as follower:
+    with NodeFollower(endpoint, curve=curve_from_args(args), snapshot=snapshot_from_args(args, settings),
+                      snapshot_timeout_s=args.snapshot_timeout) as follower:
         mon = Monitor(follower, out=sys.stdout, refresh_s=args.refresh, ansi=False if args.no_progress else None,
                       max_rows=args.rows, png=args.png, png_every_s=args.png_every, state_dir=args.state_dir)
         why = mon.run(duration_s=args.duration, until_silent_s=args.until_silent, stop=stop)

@@ -106,7 +106,7 @@ def test_monitor_started_mid_run_shows_every_live_contact(live_node, pause_at):
     node = live_node(pause_after=pause_at)
     before = _paused(node)
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "monitor", "--from", node.endpoint, "--plain",
-                             "--refresh", "0.3", "--rows", "50"],
+                             "--refresh", "0.3", "--rows", "50", "--snapshot-timeout", str(WAIT_S)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "COLUMNS": "160"})  # the whole 'received' line
     stdout, stderr = StreamLines(proc.stdout), StreamLines(proc.stderr)
@@ -142,7 +142,8 @@ def test_export_from_started_mid_run_writes_every_live_contact(live_node, pause_
     before = _paused(node)
     out = tmp_path / "live.geojson"
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "export", "--from", node.endpoint,
-                             "--until-silent", "0", "--refresh", "0.2", "-o", str(out)], stderr=subprocess.PIPE,
+                             "--until-silent", "0", "--refresh", "0.2", "-o", str(out),
+                             "--snapshot-timeout", str(WAIT_S)], stderr=subprocess.PIPE,
                             text=True)
     stderr = StreamLines(proc.stderr)
 
@@ -185,7 +186,8 @@ def test_exwpt_started_mid_run_sends_the_live_contacts_first(live_node, pause_at
     reader = threading.Thread(target=_pty_reader, args=(master, lines, stop), daemon=True)
     reader.start()
     proc = subprocess.Popen([sys.executable, "-m", "atr_node", "exwpt", "--from", node.endpoint, "--port",
-                             os.ttyname(slave), "--min-move-m", "0", "--min-bel-change", "0"],
+                             os.ttyname(slave), "--min-move-m", "0", "--min-bel-change", "0",
+                             "--snapshot-timeout", str(WAIT_S)],
                             stderr=subprocess.PIPE, text=True)
     stderr = StreamLines(proc.stderr)
     try:
@@ -337,3 +339,15 @@ def test_joining_while_messages_stream_applies_each_exactly_once():
     assert fol.stats.gaps == 0 and fol.stats.contacts == 1500 - s
     assert fol.stats.duplicates >= 20  # the race happened: held messages the snapshot already had
     assert {c["id"]: c for c in fol.book.contacts()} == _live(messages)
+
+
+@pytest.mark.parametrize("command", ["monitor", "export", "exwpt"])
+@pytest.mark.parametrize("value", ["0", "-1", "nan", "inf", "soon"])
+def test_snapshot_timeout_must_be_seconds(command, value):
+    """--snapshot-timeout: a usage error naming the option (exit 2), before any socket."""
+    r = subprocess.run([sys.executable, "-m", "atr_node", command, "--from", "tcp://127.0.0.1:1",
+                        "--snapshot-timeout", value], capture_output=True, text=True, timeout=WAIT_S)
+    assert r.returncode == 2
+    assert r.stderr.splitlines()[-1].endswith(f"argument --snapshot-timeout: must be a finite number of seconds > 0, "
+                                              f"got '{value}'")
+    assert "Traceback" not in r.stderr
