@@ -568,9 +568,31 @@ class RecordingSettings:
     """Altitude used for slant-to-ground conversion: ``altimeter`` as recorded; ``sonar`` from
     the first bottom return in the image; ``auto`` the recorded one where it is plausible, the
     image's where it is missing, zero or implausible."""
+    frequency: str | float = "high"
+    """XTF from a dual-frequency sonar: which side-scan channel of a side to read, ``high``
+    (the finer resolution), ``low`` or a frequency in kHz (docs/xtf.md). The command line's
+    ``--frequency`` wins."""
 
     def __post_init__(self) -> None:
         _check(self.crs == self.crs.strip(), "recording.crs", "must not start or end with spaces")
+        frequency_choice(self.frequency, "recording.frequency")
+
+
+def frequency_choice(value: Any, option: str = "--frequency") -> str | float:
+    """``high``, ``low`` or a frequency in kHz (a number > 0, as text or number): which
+    side-scan channel of a dual-frequency recording to read. Anything else is a
+    :class:`~atr_node.errors.ConfigError` naming ``option``."""
+    if isinstance(value, str) and value.strip().lower() in ("high", "low"):
+        return value.strip().lower()
+    try:
+        khz = math.nan if isinstance(value, bool) else float(value)
+    except (TypeError, ValueError):
+        khz = math.nan
+    if not (math.isfinite(khz) and khz > 0):
+        if option.startswith("--"):
+            raise ConfigError(f"{option} {value!r}: expected high, low or a frequency in kHz > 0")
+        raise ConfigError(f"must be high, low or a frequency in kHz > 0, got {value!r}", key=option)
+    return khz
 
 
 @dataclass(frozen=True)

@@ -63,8 +63,8 @@ def recording_deltas(path: str, settings: Settings, model: PerformanceModel, nod
     pipe = Pipeline(settings, model=model, workers=0, mode="replay")
     try:
         grid = attach_exchange(pipe, node=node)
-        pipe.replay(open_recording(path, crs=settings.recording.crs,
-                                    altitude=settings.recording.altitude))
+        pipe.replay(open_recording(path, crs=settings.recording.crs, altitude=settings.recording.altitude,
+                                    frequency=settings.recording.frequency))
     finally:
         pipe.close()
     st = pipe.stats
@@ -125,15 +125,17 @@ def contacts_of(grid: EvidenceGrid, frame: MissionFrame | None, settings: Settin
     return [c.to_message() for c in sorted(tracker.update(grid, t), key=lambda c: c.id)]
 
 
-def check_positions(paths: Sequence[str | Path], crs: str) -> None:
+def check_positions(paths: Sequence[str | Path], crs: str, frequency: str | float = "high") -> None:
     """Fail at once, before any task, on an XTF recording whose positions need a CRS that was
-    not given (rather than in every task and its retries). Files this host cannot see (a remote
-    cluster's paths) are left to their task."""
-    from ..io.xtf_packets import read_positions
+    not given, or without a side-scan channel at the frequency asked (rather than in every task
+    and its retries). Files this host cannot see (a remote cluster's paths) are left to their task."""
+    from ..io.xtf_packets import check_frequency, read_file_header, read_positions
 
     for p in paths:
         if str(p).lower().endswith(".xtf") and Path(p).is_file():
             read_positions(p, crs)
+            with open(p, "rb") as fh:
+                check_frequency(read_file_header(fh, str(p)), frequency, str(p))
 
 
 def run_recordings(paths: Sequence[str | Path], settings: Settings, model: PerformanceModel, engine: Engine, *,
@@ -141,7 +143,7 @@ def run_recordings(paths: Sequence[str | Path], settings: Settings, model: Perfo
     """Map every recording to its deltas on ``engine``, reduce, extract contacts."""
     if not paths:
         raise AtrError("batch: no recording given")
-    check_positions(paths, settings.recording.crs)
+    check_positions(paths, settings.recording.crs, settings.recording.frequency)
     items = [(Path(p).name, (str(p), settings, model, node)) for p, node in zip(paths, node_ids(paths))]
     t0 = time.perf_counter()
     outcomes = engine.map(recording_deltas, items, progress=progress)

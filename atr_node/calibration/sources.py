@@ -86,7 +86,8 @@ def images_from_recording(path: str | Path, *, settings: Any, max_images: int, c
     if str(path).lower().endswith(".xtf"):
         from ..io.xtf import iter_xtf_records
 
-        records = iter_xtf_records(path, altitude=settings.recording.altitude, crs=crs)
+        records = iter_xtf_records(path, altitude=settings.recording.altitude, crs=crs,
+                                   frequency=settings.recording.frequency)
     else:
         from ..io.atrlog import read_atrlog
 

@@ -1,5 +1,6 @@
-"""``--crs``, shared by the commands that read XTF (replay, convert, batch, calibrate; ICD v1.1
-section 6): the command line's value wins over the ``recording.crs`` key."""
+"""``--crs`` and ``--frequency``, shared by the commands that read XTF (replay, convert, batch,
+calibrate; ICD v1.1 section 6): the command line's value wins over the ``recording.crs`` and
+``recording.frequency`` keys."""
 
 from __future__ import annotations
 
@@ -25,3 +26,23 @@ def resolve_crs(cli_value: str | None, settings: Any = None) -> str:
     if crs:
         projection(crs, option=option)
     return crs
+
+
+def add_frequency_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--frequency", metavar="high|low|KHZ", default=None,
+                        help="XTF of a dual-frequency sonar: the side-scan channels to read, high (the finer "
+                             "resolution), low, or a frequency in kHz (default: recording.frequency, high)")
+
+
+def resolve_frequency(cli_value: str | None, settings: Any = None) -> Any:
+    """``settings`` with ``recording.frequency`` from ``--frequency`` when given (checked now: a
+    bad one fails in one line naming the option); the settings as they are otherwise."""
+    import dataclasses
+
+    from ..config import Settings, frequency_choice
+
+    if cli_value is None:
+        return settings if settings is not None else Settings()
+    value = frequency_choice(cli_value, "--frequency")
+    settings = settings if settings is not None else Settings()
+    return dataclasses.replace(settings, recording=dataclasses.replace(settings.recording, frequency=value))

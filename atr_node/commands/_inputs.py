@@ -10,7 +10,7 @@ from pathlib import Path
 from ..errors import AtrError
 
 
-def require_sonar_tile(path: str | Path, *, crs: str = "") -> None:
+def require_sonar_tile(path: str | Path, *, crs: str = "", frequency: str | float = "high") -> None:
     """Raise :class:`AtrError` (``FILE: no sonar tile in N records``) unless the recording at
     ``path`` (.atrlog, .xtf or .jsf) holds a sonar tile. Reads up to the first tile only, so a
     normal recording costs one record or a few; an unreadable file fails with its reader's
@@ -25,7 +25,7 @@ def require_sonar_tile(path: str | Path, *, crs: str = "") -> None:
     if not p.exists():
         raise AtrError(f"{p}: cannot open: No such file or directory; expected a recording (.atrlog, .xtf or .jsf)")
     records = 0
-    for rec in open_recording(p, crs=crs, altitude="altimeter"):
+    for rec in open_recording(p, crs=crs, altitude="altimeter", frequency=frequency):
         if rec.link == "sonar":
             return
         records += 1

@@ -32,7 +32,7 @@ import time
 from ..config import load_settings
 from ..errors import AtrError
 from ..io.atomic import atomic_open
-from ._crs import add_crs_argument, resolve_crs
+from ._crs import add_crs_argument, add_frequency_argument, resolve_crs, resolve_frequency
 from ._progress import add_progress_argument
 
 EXIT_DETAIL = "batch: 1 also when a recording failed after its retries (the others are still merged)"
@@ -51,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--summary", metavar="FILE", help="write timings, counters and failures as JSON")
     add_progress_argument(parser)
     add_crs_argument(parser)
+    add_frequency_argument(parser)
     cal = parser.add_argument_group("calibration Monte Carlo (--calibrate)")
     cal.add_argument("--calibrate", action="store_true", help="run the calibration Monte Carlo instead")
     cal.add_argument("--input", nargs="*", default=[], metavar="PATH",
@@ -101,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
 
     # Dask logs every worker start and stop at INFO: keep them for -v and -vv
     dask_log_level(logging.INFO if getattr(args, "verbose", 0) else logging.ERROR)
-    settings = load_settings(args.config)
+    settings = resolve_frequency(getattr(args, "frequency", None), load_settings(args.config))
     crs = resolve_crs(getattr(args, "crs", None), settings)
     if crs != settings.recording.crs:  # --crs wins; the tasks read it from their settings
         import dataclasses

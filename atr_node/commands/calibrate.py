@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..config import load_settings
 from ..errors import AtrError
-from ._crs import add_crs_argument, resolve_crs
+from ._crs import add_crs_argument, add_frequency_argument, resolve_crs, resolve_frequency
 from ._inputs import require_sonar_tile
 from ._progress import add_progress_argument
 
@@ -53,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-plots", action="store_true", help="write no figures")
     add_progress_argument(parser, help="no progress bar on stderr")
     add_crs_argument(parser)
+    add_frequency_argument(parser)
 
 
 class ProgressBar:
@@ -96,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from ..calibration.responses import collect_responses
     from ..calibration.sources import images_from_paths, synthetic_images
 
-    settings = load_settings(args.config)
+    settings = resolve_frequency(getattr(args, "frequency", None), load_settings(args.config))
     cal = settings.calibration
     iterations, targets, seed = calibration_counts(args, cal)
     seabed = args.seabed or settings.simulation.seabed
@@ -104,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         crs = resolve_crs(getattr(args, "crs", None), settings)
         for path in args.input:  # every recording checked before the first injection
             if Path(path).suffix.lower() in (".atrlog", ".xtf", ".jsf"):
-                require_sonar_tile(path, crs=crs)
+                require_sonar_tile(path, crs=crs, frequency=settings.recording.frequency)
         images = images_from_paths(args.input, settings=settings, max_images=args.max_images,
                                    pixel_m=args.pixel_m, range0_m=args.range0_m, crs=crs)
         source = ", ".join(str(p) for p in args.input)

@@ -14,7 +14,10 @@ the input, even if some packets or records were skipped. OUT is written under a 
 in its folder and renamed when complete: after an error there is no OUT (nor a partial one).
 
 --crs: XTF -> atrlog, the CRS of positions in projected metres (NavUnits 0; such a file fails
-at once without it); atrlog -> XTF, write positions as easting and northing in that CRS."""
+at once without it); atrlog -> XTF, write positions as easting and northing in that CRS.
+
+--frequency: XTF of a dual-frequency sonar (two side-scan channels per side), which to read:
+high (default), low or a frequency in kHz; the channels not read are counted in the summary."""
 
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ from ..io.atrlog import AtrLogReader, AtrLogWriter
 from ..io.xtf import DEFAULT_TILE_PINGS, XtfReader
 from ..io.xtf_write import XtfWriter
 from ..io.atomic import atomic_path
-from ._crs import add_crs_argument, resolve_crs
+from ._crs import add_crs_argument, add_frequency_argument, resolve_crs, resolve_frequency
 from ._inputs import require_sonar_tile
 
 EXIT_DETAIL = "convert: 1 also for an input that is not a recording or holds no sonar tile (OUT is then not written)"
@@ -48,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="JSF -> atrlog: side-scan subsystem to read, 20 low, 21 high, 22 very high "
                              "frequency (default: the first in the file; the others are counted as skipped)")
     add_crs_argument(parser)
+    add_frequency_argument(parser)
 
 
 def _kind(path: Path) -> str:
@@ -58,7 +62,8 @@ def _kind(path: Path) -> str:
 
 
 def xtf_to_atrlog(src: Path, dst: Path, *, tile_pings: int, mission: str | None, leg: int | None,
-                  altitude: str = "auto", crs: str = "", subsystem: int | None = None) -> str:
+                  altitude: str = "auto", crs: str = "", subsystem: int | None = None,
+                  frequency: str | float = "high") -> str:
     """Write the records of an XTF (or, by suffix, JSF) file to an .atrlog; return the summary."""
     if src.suffix.lower() == ".jsf":
         from ..io.jsf import JsfReader
@@ -66,7 +71,8 @@ def xtf_to_atrlog(src: Path, dst: Path, *, tile_pings: int, mission: str | None,
         reader = JsfReader(src, tile_pings=tile_pings, mission=mission, leg=leg, altitude=altitude, crs=crs,
                            subsystem=subsystem)
     else:
-        reader = XtfReader(src, tile_pings=tile_pings, mission=mission, leg=leg, altitude=altitude, crs=crs)
+        reader = XtfReader(src, tile_pings=tile_pings, mission=mission, leg=leg, altitude=altitude, crs=crs,
+                           frequency=frequency)
     with AtrLogWriter(dst, flush_every=256) as w:
         for rec in reader:
             w.write_record(rec)
@@ -107,14 +113,16 @@ def run(args: argparse.Namespace) -> int:
     if args.tile_pings < 1:
         raise AtrError(f"--tile-pings must be >= 1, got {args.tile_pings}")
     crs = resolve_crs(getattr(args, "crs", None))
+    frequency = resolve_frequency(getattr(args, "frequency", None)).recording.frequency
     if not dst.parent.is_dir():
         raise AtrError(f"{dst}: No such file or directory: no folder {dst.parent}")
-    require_sonar_tile(src, crs=crs)
+    require_sonar_tile(src, crs=crs, frequency=frequency)
     try:
         with atomic_path(dst) as tmp:
             if kin in ("xtf", "jsf"):
                 text = xtf_to_atrlog(src, tmp, tile_pings=args.tile_pings, mission=args.mission, leg=args.leg,
-                                     altitude=args.altitude, crs=crs, subsystem=getattr(args, "subsystem", None))
+                                     altitude=args.altitude, crs=crs, subsystem=getattr(args, "subsystem", None),
+                                     frequency=frequency)
             else:
                 text = atrlog_to_xtf(src, tmp, crs=crs)
     except OSError as exc:

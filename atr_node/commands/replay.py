@@ -31,7 +31,7 @@ import time
 from ..config import load_settings
 from ..errors import AtrError
 from ..io.atomic import atomic_open
-from ._crs import add_crs_argument, resolve_crs
+from ._crs import add_crs_argument, add_frequency_argument, resolve_crs, resolve_frequency
 from ._endpoints import check_optional_endpoint
 from ._inputs import require_sonar_tile
 from ._progress import add_progress_argument
@@ -64,6 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--summary", metavar="FILE", help="write run counters and timings as JSON")
     add_progress_argument(parser)
     add_crs_argument(parser)
+    add_frequency_argument(parser)
 
 
 def _speed(text: str) -> float | None:
@@ -97,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     from ..node.service import NodeService, open_recording, write_contacts, write_detections
     from ..node.snapshot_endpoint import node_snapshot_endpoint
 
-    settings = load_settings(args.config)
+    settings = resolve_frequency(getattr(args, "frequency", None), load_settings(args.config))
     speed = _speed(args.speed)
     publish_where = "--publish" if args.publish is not None else "links.publish_endpoint"
     publish = check_optional_endpoint(args.publish if args.publish is not None else settings.links.publish_endpoint,
@@ -107,8 +108,9 @@ def run(args: argparse.Namespace) -> int:
         check_optional_endpoint(settings.links.snapshot_endpoint, "links.snapshot_endpoint")
     # checked first: a recording that cannot be read, holds no tile or needs --crs fails before the node starts
     crs = resolve_crs(getattr(args, "crs", None), settings)
-    require_sonar_tile(args.log, crs=crs)
-    recording = open_recording(args.log, crs=crs, altitude=settings.recording.altitude)
+    require_sonar_tile(args.log, crs=crs, frequency=settings.recording.frequency)
+    recording = open_recording(args.log, crs=crs, altitude=settings.recording.altitude,
+                               frequency=settings.recording.frequency)
     model, online = build_model(settings, args.model, args.online_calibration, deterministic=True)
     publish = None if publish in ("", "none") else publish
     snapshot, snapshot_setting = node_snapshot_endpoint(settings, publish_arg=args.publish,

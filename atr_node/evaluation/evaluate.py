@@ -191,8 +191,9 @@ def _node_agreement(node_row: Row, ds_row: Row, f_all: FusionResult, run: Evalua
 def _run(settings, log_path, *, model, online, mosaic, progress, sweep: bool) -> EvaluationRun:
     from ..node.service import open_recording
 
-    return run_pipeline(settings, open_recording(log_path, altitude=settings.recording.altitude), model=model,
-                        online=online, progress=progress,
+    rec = settings.recording
+    records = open_recording(log_path, crs=rec.crs, altitude=rec.altitude, frequency=rec.frequency)
+    return run_pipeline(settings, records, model=model, online=online, progress=progress,
                         keep_pixels=mosaic.add if mosaic is not None else None,
                         sweep_factors=SWEEP_FACTORS if sweep else ())
 

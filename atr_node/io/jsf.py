@@ -415,6 +415,9 @@ class JsfReader(XtfReader):
         # (one line for a bad one) and used only by pings in projected units
         return projection(crs) if crs else None
 
+    def _check_frequency(self) -> None:
+        pass  # JSF: the side-scan subsystem is chosen by number (``subsystem``), not by frequency
+
     def _items(self) -> Iterator[XtfPing | XtfNav | XtfSerial]:
         return iter_jsf_items(self.path, self.stats, subsystem=self.subsystem, positions=self.positions)
 

@@ -42,13 +42,14 @@ from typing import Iterator
 
 import numpy as np
 
-from ..config import SensorSettings
+from ..config import SensorSettings, frequency_choice
 from ..records.nav import _haversine_m, nav_jumps
 from ..records.tile import SensorInfo, Tile, TileNav
 from .atrlog import LogRecord
 from .nmea_encode import KNOT_M_S, NmeaError, encode_dpt, encode_gga, encode_hdt, encode_zda, format_sentence
 from .xtf_bottom import BottomTrack, shares_axis, track_bottom
-from .xtf_packets import XtfNav, XtfPing, XtfSerial, iter_xtf_items, note_fields, read_positions
+from .xtf_packets import (XtfNav, XtfPing, XtfSerial, check_frequency, iter_xtf_items, note_fields,
+                           read_file_header, read_positions)
 from .xtf_stats import XtfStats
 
 __all__ = ["DEFAULT_TILE_PINGS", "XtfReader", "XtfStats", "iter_xtf_records"]
@@ -145,20 +146,26 @@ class XtfReader:
     crs
         Coordinate reference system of the file's positions when they are not degrees (XTF
         ``NavUnits`` 0: projected metres), e.g. ``EPSG:32610``; "" = none (:mod:`.crs`).
+    frequency
+        Which side-scan channel to read where a side has more than one (a dual-frequency
+        sonar): ``high`` (default: the finer resolution an ATR wants), ``low``, or a frequency
+        in kHz (within 10 %); :func:`.xtf_packets.pick_channel`. Channels not read are counted
+        (``stats.channels_unused``) and said in one line (``stats.frequency_line``).
 
     Raises
     ------
     LogFormatError
-        At construction (the file header is read at once): not an XTF file, or positions that
-        need a CRS and none given (one line naming ``--crs``).
+        At construction (the file header is read at once): not an XTF file, positions that
+        need a CRS and none given (one line naming ``--crs``), or a frequency in kHz that none
+        of the side-scan channels the header lists has (one line naming ``--frequency``).
     ConfigError
-        ``crs`` is not a CRS pyproj knows.
+        ``crs`` is not a CRS pyproj knows; ``frequency`` is not high, low or a number > 0.
     """
 
     def __init__(self, path: str | os.PathLike[str], *, tile_pings: int = DEFAULT_TILE_PINGS,
                  mission: str | None = None, leg: int | None = None, seq0: int | None = None,
                  sensor: SensorSettings | None = None, altitude: str = "auto", max_gap_s: float = 2.0,
-                 crs: str = "") -> None:
+                 crs: str = "", frequency: str | float = "high") -> None:
         if not max_gap_s > 0:
             raise ValueError(f"max_gap_s must be > 0, got {max_gap_s}")
         self.max_gap_s = float(max_gap_s)
@@ -176,10 +183,18 @@ class XtfReader:
         # what the positions are is decided from the file header now, so that a file that
         # needs --crs fails before a command writes anything
         self.positions = self._read_positions(crs)
+        self.frequency = frequency_choice(frequency)
+        self._check_frequency()
 
     def _read_positions(self, crs: str):
         """What the file's positions are (its header); a hook other formats (JSF) override."""
         return read_positions(self.path, crs)
+
+    def _check_frequency(self) -> None:
+        """A frequency in kHz the header's side-scan channels do not have fails now (a hook JSF
+        overrides: its subsystems are chosen by number)."""
+        with open(self.path, "rb") as fh:
+            check_frequency(read_file_header(fh, str(self.path)), self.frequency, str(self.path))
 
     def _use_header(self, header) -> None:
         """Mission, leg and seq written by :mod:`.xtf_write` are the defaults of the arguments."""
@@ -240,10 +255,12 @@ class XtfReader:
             yield from self._tiles(block)
         if self.stats.pings:
             log.info("%s: %s", self.path, self.stats.altitude_line())
+        if self.stats.channels_unused:
+            log.info("%s: %s", self.path, self.stats.frequency_line())
 
     def _items(self) -> Iterator[XtfPing | XtfNav | XtfSerial]:
         """The pings, fixes and serial text of the file; the hook other formats (JSF) override."""
-        return iter_xtf_items(self.path, self.stats, self._header, positions=self.positions)
+        return iter_xtf_items(self.path, self.stats, self._header, positions=self.positions, frequency=self.frequency)
 
     # -- records -----------------------------------------------------------------------------
     def _record(self, t: float, link: str, msg, offset: int) -> LogRecord:
@@ -412,14 +429,14 @@ class XtfReader:
 def iter_xtf_records(path: str | os.PathLike[str], *, tile_pings: int = DEFAULT_TILE_PINGS,
                      mission: str | None = None, leg: int | None = None, seq0: int | None = None,
                      sensor: SensorSettings | None = None, altitude: str = "auto",
-                     stats: XtfStats | None = None, crs: str = "") -> Iterator[LogRecord]:
+                     stats: XtfStats | None = None, crs: str = "", frequency: str | float = "high") -> Iterator[LogRecord]:
     """Stream an XTF file as ``.atrlog`` records (see :class:`XtfReader`).
 
     ``stats``, when given, is filled as the records stream (packets by type, skipped unknown
     types, pings, tiles, NMEA sentences); read it once the iterator is exhausted.
     """
     reader = XtfReader(path, tile_pings=tile_pings, mission=mission, leg=leg, seq0=seq0, sensor=sensor,
-                       altitude=altitude, crs=crs)
+                       altitude=altitude, crs=crs, frequency=frequency)
     if stats is not None:
         stats.path = reader.stats.path
         reader.stats = stats

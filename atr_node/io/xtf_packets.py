@@ -277,9 +277,11 @@ def read_positions(path: str | os.PathLike[str], crs: str = "", *, option: str =
 
 
 def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfStats,
-               positions: XtfPositions | None = None) -> XtfPing | None:
+               positions: XtfPositions | None = None, frequency: str | float = "high") -> XtfPing | None:
     """A sonar ping packet as :class:`XtfPing`, or None (counted in ``stats``); positions read
-    as ``positions`` says (default: degrees when the header says so, else none)."""
+    as ``positions`` says (default: degrees when the header says so, else none); of a side with
+    more than one side-scan channel (a dual-frequency sonar) the one :func:`pick_channel` picks
+    by ``frequency`` (the others counted in ``stats.channels_unused``)."""
     positions = positions or XtfPositions(header.NavUnits)
     try:
         t = _utc(p.Year, p.Month, p.Day, p.Hour, p.Minute, p.Second) + p.HSeconds / 100.0
@@ -301,11 +303,11 @@ def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfS
                  fix_t=fix_t, source="xtf:sonar")
     sv = float(p.SoundVelocity)
     sv = 750.0 if not (math.isfinite(sv) and sv > 0) else (sv / 2.0 if sv > 1000.0 else sv)  # one-way speed
-    channels: dict[str, XtfChannel] = {}
+    found: dict[str, list[XtfChannel]] = {}
     for i, (ch, data) in enumerate(zip(p.ping_chan_headers, p.data)):
         info = header.ChanInfo[ch.ChannelNumber] if ch.ChannelNumber < 6 else None
         side = CHANNEL_SIDES.get(info.TypeOfChannel) if info is not None else None
-        if side is None or side in channels:
+        if side is None:
             stats.skipped[f"channel_type_{info.TypeOfChannel if info is not None else '?'}"] += 1
             continue
         n = int(data.size)
@@ -321,13 +323,71 @@ def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfS
             samples = samples[::-1]
         dr = slant / n
         freq = float(ch.Frequency) * 1e3 if ch.Frequency else float(info.Frequency) * 1e3
-        channels[side] = XtfChannel(side=side, samples=np.ascontiguousarray(samples),
-                                    range0_m=float(ch.TimeDelay) * sv + 0.5 * dr, dr_m=dr, slant=is_slant,
-                                    frequency_hz=freq, bandwidth_hz=float(ch.BandWidth))
+        found.setdefault(side, []).append(
+            XtfChannel(side=side, samples=np.ascontiguousarray(samples), range0_m=float(ch.TimeDelay) * sv + 0.5 * dr,
+                       dr_m=dr, slant=is_slant, frequency_hz=freq if math.isfinite(freq) and freq > 0 else 0.0,
+                       bandwidth_hz=float(ch.BandWidth)))
+    channels: dict[str, XtfChannel] = {}
+    for side, cands in found.items():
+        chosen = pick_channel(cands, frequency)
+        for c in cands:
+            if c is not chosen:
+                stats.channels_unused[_khz_text(c.frequency_hz)] += 1
+        if chosen is None:
+            continue
+        stats.channels_used[_khz_text(chosen.frequency_hz)] += 1
+        channels[side] = chosen
     if not channels:
-        stats.pings_dropped["no_side_scan_channel"] += 1
+        stats.pings_dropped["no_side_scan_channel" if not found else f"no_channel_at_{frequency:g}_kHz"] += 1
         return None
     return XtfPing(nav=nav, channels=channels, ping_number=int(p.PingNumber), offset=offset)
+
+
+# -- which side-scan channel of a side (dual-frequency sonars) ---------------------------------
+FREQUENCY_TOLERANCE = 0.1
+"""A channel is at a frequency asked in kHz when that is within this share of the channel's."""
+
+
+def pick_channel(cands: list[XtfChannel], frequency: str | float = "high") -> XtfChannel | None:
+    """The channel of one side to read, of those of one ping in channel order.
+
+    ``high`` / ``low``: the highest / lowest known frequency (the first channel on a tie);
+    a number: the nearest channel if that many kHz is within :data:`FREQUENCY_TOLERANCE` of its
+    frequency, else None. Channels whose frequency is unknown (0) are read only
+    where none of the side's is known: then the first, whatever was asked (nothing to choose by).
+    """
+    known = [c for c in cands if c.frequency_hz > 0]
+    if not known:
+        return cands[0] if cands else None
+    if frequency == "high":
+        return max(known, key=lambda c: c.frequency_hz)  # max/min keep the first of equals
+    if frequency == "low":
+        return min(known, key=lambda c: c.frequency_hz)
+    want = float(frequency) * 1e3
+    best = min(known, key=lambda c: abs(c.frequency_hz - want))
+    return best if abs(best.frequency_hz - want) <= FREQUENCY_TOLERANCE * best.frequency_hz else None
+
+
+def _khz_text(hz: float) -> str:
+    return f"{hz / 1e3:g} kHz" if hz > 0 else "unknown frequency"
+
+
+def side_scan_frequencies_khz(header: XTFFileHeader) -> list[float]:
+    """The side-scan channel frequencies the file header lists (kHz, known ones, sorted)."""
+    n = min(int(header.NumberOfSonarChannels) or 6, 6)
+    return sorted({float(header.ChanInfo[i].Frequency) for i in range(n)
+                   if header.ChanInfo[i].TypeOfChannel in CHANNEL_SIDES and header.ChanInfo[i].Frequency > 0})
+
+
+def check_frequency(header: XTFFileHeader, frequency: str | float, path: str, option: str = "--frequency") -> None:
+    """Fail at once (:class:`LogFormatError`, one line naming ``option``) when a frequency in
+    kHz is asked for and the file header lists side-scan frequencies, none of them near it."""
+    if isinstance(frequency, str):
+        return
+    have = side_scan_frequencies_khz(header)
+    if have and not any(abs(f - frequency) <= FREQUENCY_TOLERANCE * f for f in have):
+        raise LogFormatError(f"no side-scan channel at {frequency:g} kHz ({option}): the file's are at "
+                             f"{', '.join(f'{f:g}' for f in have)} kHz; give one of them, high or low", path=path)
 
 
 def parse_nav_packet(kind: int, raw: bytes, header: XTFFileHeader, offset: int = 0,
@@ -373,7 +433,8 @@ MIN_BYTES = {SONAR: ctypes.sizeof(XTFPingHeader), NAVIGATION: ctypes.sizeof(XTFH
 
 
 def iter_xtf_items(path: str | os.PathLike[str], stats: XtfStats, header_out: list | None = None, *,
-                   crs: str = "", positions: XtfPositions | None = None) -> Iterator[XtfPing | XtfNav | XtfSerial]:
+                   crs: str = "", positions: XtfPositions | None = None,
+                   frequency: str | float = "high") -> Iterator[XtfPing | XtfNav | XtfSerial]:
     """Stream the pings, navigation fixes and serial text of an XTF file, in file order.
 
     Parameters
@@ -388,6 +449,9 @@ def iter_xtf_items(path: str | os.PathLike[str], stats: XtfStats, header_out: li
         CRS of positions that are not degrees (:func:`file_positions`); "" = none.
     positions
         How to read positions, already decided (:func:`read_positions`); overrides ``crs``.
+    frequency
+        Of a side with more than one side-scan channel, which to read (:func:`pick_channel`):
+        ``high`` (default), ``low`` or a frequency in kHz.
 
     Raises
     ------
@@ -445,7 +509,7 @@ def iter_xtf_items(path: str | os.PathLike[str], stats: XtfStats, header_out: li
             try:
                 if kind == SONAR:
                     item = parse_ping(XTFPingHeader.create_from_buffer(io.BytesIO(raw), file_header=header),
-                                      header, here, stats, positions)
+                                      header, here, stats, positions, frequency)
                 elif kind == RAW_SERIAL:
                     item = parse_raw_serial(raw, here)
                 else:

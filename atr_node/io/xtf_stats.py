@@ -29,6 +29,11 @@ class XtfStats:
     pings_dropped: Counter = field(default_factory=Counter)
     """Sonar pings not used, by reason (``bad_time``, ``time_backwards``, ``no_range``, ...)."""
     pings_without_nav: int = 0
+    channels_used: Counter = field(default_factory=Counter)
+    """Side-scan channels read (one per side and ping), by frequency (``500 kHz``)."""
+    channels_unused: Counter = field(default_factory=Counter)
+    """Side-scan channels of a side that had another one (dual-frequency sonars) and were not
+    read, by frequency."""
     tiles: int = 0
     nav_fixes: int = 0
     nmea: Counter = field(default_factory=Counter)
@@ -86,6 +91,17 @@ class XtfStats:
             text += f"; {self.altitude_image_carried} pings without a clear return carried from their neighbours"
         return text
 
+    def frequency_line(self) -> str:
+        """Which side-scan channels were read where a side had more than one (empty when none
+        had), e.g. ``side-scan: 500 kHz read (2000 channel-pings), 100 kHz not (2000);
+        --frequency high, low or kHz chooses``."""
+        if not self.channels_unused:
+            return ""
+        used = ", ".join(f"{k} ({v})" for k, v in sorted(self.channels_used.items()))
+        unused = ", ".join(f"{k} ({v})" for k, v in sorted(self.channels_unused.items()))
+        return (f"side-scan: {used or 'nothing'} read, {unused} not (channel-pings); "
+                "--frequency high, low or kHz chooses")
+
     def summary(self) -> str:
         """A few lines for the user: what was read, skipped and why."""
         lines = [f"{self.path}: {sum(self.packets.values())} packets "
@@ -98,6 +114,8 @@ class XtfStats:
         if self.pings_dropped or self.pings_without_nav:
             lines.append(f"  pings dropped: {dict(self.pings_dropped) or 0}; pings without nav "
                          f"(tiles without nav map): {self.pings_without_nav}")
+        if self.channels_unused:
+            lines.append(f"  {self.frequency_line()}")
         if self.altitude_source:
             lines.append(f"  {self.altitude_line()}")
         if self.pings_resampled:

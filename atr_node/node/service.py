@@ -341,15 +341,18 @@ def write_detections(path: str | Path, pipeline: Pipeline) -> None:
                                  "gamma": r.gamma, "confidence": r.confidence}) + "\n")
 
 
-def open_recording(path: str | Path, *, crs: str = "", altitude: str = "auto") -> Iterable[LogRecord]:
+def open_recording(path: str | Path, *, crs: str = "", altitude: str = "auto",
+                   frequency: str | float = "high") -> Iterable[LogRecord]:
     """Records of an .atrlog or an .xtf file, for replay; ``crs``: of XTF positions in
     projected metres (``--crs``, :mod:`atr_node.io.crs`). A file that needs it and has none
-    fails here, before the first record. ``altitude``: of XTF tiles (``recording.altitude``)."""
+    fails here, before the first record. ``altitude``: of XTF tiles (``recording.altitude``);
+    ``frequency``: the side-scan channels of a dual-frequency XTF (``recording.frequency``;
+    JSF subsystems are chosen with ``convert --subsystem``)."""
     p = str(path)
     if p.lower().endswith(".xtf"):
         from ..io.xtf import iter_xtf_records
 
-        return iter(iter_xtf_records(p, crs=crs, altitude=altitude))
+        return iter(iter_xtf_records(p, crs=crs, altitude=altitude, frequency=frequency))
     if p.lower().endswith(".jsf"):  # EdgeTech JSF: same records, same options (:mod:`atr_node.io.jsf`)
         from ..io.jsf import iter_jsf_records
 
