@@ -69,7 +69,7 @@ def xtf_to_atrlog(src: Path, dst: Path, *, tile_pings: int, mission: str | None,
         from ..io.jsf import JsfReader
 
         reader = JsfReader(src, tile_pings=tile_pings, mission=mission, leg=leg, altitude=altitude, crs=crs,
-                           subsystem=subsystem)
+                           subsystem=subsystem, frequency=frequency)
     else:
         reader = XtfReader(src, tile_pings=tile_pings, mission=mission, leg=leg, altitude=altitude, crs=crs,
                            frequency=frequency)

@@ -416,7 +416,11 @@ class JsfReader(XtfReader):
         return projection(crs) if crs else None
 
     def _check_frequency(self) -> None:
-        pass  # JSF: the side-scan subsystem is chosen by number (``subsystem``), not by frequency
+        # JSF: the side-scan subsystem is chosen by number (``subsystem``), not by frequency
+        if self.frequency != "high":
+            log.warning("%s: --frequency (recording.frequency) chooses the channels of an XTF file; a JSF file's "
+                        "side-scan subsystem is chosen by number: atr-node convert %s OUT.atrlog --subsystem "
+                        "20|21|22", self.path, self.path)
 
     def _items(self) -> Iterator[XtfPing | XtfNav | XtfSerial]:
         return iter_jsf_items(self.path, self.stats, subsystem=self.subsystem, positions=self.positions)
@@ -425,11 +429,11 @@ class JsfReader(XtfReader):
 def iter_jsf_records(path: str | os.PathLike[str], *, tile_pings: int = DEFAULT_TILE_PINGS,
                      mission: str | None = None, leg: int | None = None, seq0: int | None = None,
                      sensor: SensorSettings | None = None, altitude: str = "auto", subsystem: int | None = None,
-                     crs: str = "", stats: XtfStats | None = None) -> Iterator[LogRecord]:
+                     crs: str = "", stats: XtfStats | None = None, frequency: str | float = "high") -> Iterator[LogRecord]:
     """Stream a JSF file as ``.atrlog`` records (see :class:`JsfReader`); ``stats`` as in
     :func:`~.xtf.iter_xtf_records`."""
     reader = JsfReader(path, tile_pings=tile_pings, mission=mission, leg=leg, seq0=seq0, sensor=sensor,
-                       altitude=altitude, subsystem=subsystem, crs=crs)
+                       altitude=altitude, subsystem=subsystem, crs=crs, frequency=frequency)
     if stats is not None:
         stats.path = reader.stats.path
         reader.stats = stats

@@ -356,7 +356,7 @@ def open_recording(path: str | Path, *, crs: str = "", altitude: str = "auto",
     if p.lower().endswith(".jsf"):  # EdgeTech JSF: same records, same options (:mod:`atr_node.io.jsf`)
         from ..io.jsf import iter_jsf_records
 
-        return iter(iter_jsf_records(p, crs=crs, altitude=altitude))
+        return iter(iter_jsf_records(p, crs=crs, altitude=altitude, frequency=frequency))
     from ..io.atrlog import AtrLogReader
 
     return AtrLogReader(p)  # iterable, and keeps its counts (records rejected, garbage) for the summary

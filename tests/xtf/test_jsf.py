@@ -267,6 +267,23 @@ def test_convert_and_replay_accept_jsf(tmp_path, capsys):
     assert tiles[0].rows == 6
 
 
+def test_frequency_of_xtf_files_is_not_silently_ignored_on_jsf(tmp_path, caplog):
+    """--frequency picks XTF channels; a JSF file says how its subsystem is chosen instead."""
+    path = tmp_path / "small.jsf"
+    _write_small(path, data_format="analytic")
+    with caplog.at_level(logging.WARNING):
+        low = [r.t for r in open_recording(path, frequency="low")]
+    assert low == [r.t for r in iter_jsf_records(path)]  # read as before
+    (rec,) = [r for r in caplog.records if "--frequency" in r.getMessage()]
+    assert "--subsystem" in rec.getMessage()
+    caplog.clear()
+    assert main(["convert", str(path), str(tmp_path / "s.atrlog"), "--frequency", "low"]) == 0
+    assert any("--subsystem" in r.getMessage() for r in caplog.records)
+    caplog.clear()
+    list(open_recording(path))
+    assert not [r for r in caplog.records if "--frequency" in r.getMessage()]
+
+
 def test_long_pings_msb_sample_count_and_multi_packet_pings(tmp_path):
     # > 65535 samples: bits 16-19 of the count in the MSB word; uint16 pixels come back exactly
     tiles = [make_tile(s, rows=2, cols=70_000, dr_m=0.01, range0_m=0.005) for s in ("port", "stbd")]
