@@ -27,6 +27,11 @@ The method (per ground-range tile, whole arrays at once):
 The tiles carry the true track plus a per-leg nav offset of about 0.5 m and a slow drift
 (recorded in ``scene.json``); the CSVs give true positions.
 
+Stress variants (:data:`VARIANTS`, ``--variant``) change, for the same seed, what another
+team's simulator is likely to do otherwise: the pixel size (0.05 and 0.2 m), the seabed
+statistics (texture correlated over 1 m, speckle of an oversampled image), the survey height
+and range (4 m / 40 m, 15 m / 100 m). The base scenes are unchanged by them, byte for byte.
+
 References
 ----------
 .. [1] E. Jakeman and P. N. Pusey, "A model for non-Rayleigh sea echo", IEEE Trans. Antennas
@@ -88,6 +93,44 @@ SENSOR = SensorInfo(frequency_hz=100e3, bandwidth_hz=20e3, tx_length_m=0.25, rx_
 TARGET_SHAPES = ("cylinder", "truncated_cone", "wedge", "dome")
 
 Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class Variant:
+    """How a scene's survey and seabed statistics depart from the base scenes: the axes along
+    which another team's simulator is likely to differ from this one. ``base`` is every scene
+    of the held-out benchmark; the others are stress tests of the same seeds (``VARIANTS``)."""
+
+    name: str = "base"
+    pixel_m: float = DR_M
+    """Ground-range and along-track pixel (the tiles keep about 25.6 m along track)."""
+    altitude_m: float = ALTITUDE_M
+    max_range_m: float = MAX_RANGE_M
+    texture_m: float = 0.0
+    """Correlation length of the K texture ``G`` (Gaussian copula, so ``G`` stays
+    Gamma(nu, 1/nu)); 0: independent per pixel, as in the base scenes."""
+    speckle_px: float = 0.0
+    """Speckle from a complex Gaussian field smoothed over this many pixels (an oversampled
+    image, |.|^2 normalised to mean 1); 0: independent Exp(1) per pixel."""
+
+    @property
+    def tile_pings(self) -> int:
+        return max(1, int(round(TILE_PINGS * DX_M / self.pixel_m)))
+
+    def info(self) -> dict[str, Any]:
+        return {k: (_r(v) if isinstance(v, float) else v) for k, v in vars(self).items()}
+
+
+VARIANTS = {v.name: v for v in (
+    Variant(),
+    Variant("fine", pixel_m=0.05),
+    Variant("coarse", pixel_m=0.2),
+    Variant("clumpy", texture_m=1.0, speckle_px=0.8),
+    Variant("high", altitude_m=15.0, max_range_m=100.0),
+    Variant("low", altitude_m=4.0, max_range_m=40.0),
+)}
+"""Stress variants of the held-out scenes (``--variant``): finer and coarser pixels, clumpy
+seabed statistics (correlated texture, oversampled speckle), a higher and a lower survey."""
 
 
 @dataclass(frozen=True)
@@ -176,6 +219,33 @@ def k_intensity(mean: np.ndarray, nu: np.ndarray | float, rng: np.random.Generat
     return mean * texture * rng.exponential(1.0, mean.shape)
 
 
+def k_intensity_correlated(mean: np.ndarray, nu: np.ndarray | float, rng: np.random.Generator, *,
+                           texture_px: float, speckle_px: float) -> np.ndarray:
+    """K-distributed intensity with spatial correlation: the texture ``G ~ Gamma(nu, 1/nu)``
+    through a Gaussian copula of a field smoothed over ``texture_px`` pixels (its marginal is
+    exactly the base scenes'), the speckle ``|c|^2`` of a complex Gaussian field smoothed over
+    ``speckle_px`` pixels and normalised to mean 1 (an exponential marginal, correlated as in an
+    oversampled image). 0 for either: independent per pixel."""
+    from scipy import special
+
+    mean = np.asarray(mean, dtype=np.float64)
+    nu_a = np.broadcast_to(np.asarray(nu, dtype=np.float64), mean.shape)
+    if texture_px > 0:
+        g = ndimage.gaussian_filter(rng.standard_normal(mean.shape), texture_px)
+        g /= max(float(g.std()), 1e-12)
+        texture = special.gammaincinv(nu_a, np.clip(special.ndtr(g), 1e-12, 1.0 - 1e-12)) / nu_a
+    else:
+        texture = rng.gamma(nu_a, 1.0 / nu_a)
+    if speckle_px > 0:
+        c = (ndimage.gaussian_filter(rng.standard_normal(mean.shape), speckle_px)
+             + 1j * ndimage.gaussian_filter(rng.standard_normal(mean.shape), speckle_px))
+        speckle = np.abs(c) ** 2
+        speckle /= max(float(speckle.mean()), 1e-300)
+    else:
+        speckle = rng.exponential(1.0, mean.shape)
+    return mean * texture * speckle
+
+
 def _slow_field(rng: np.random.Generator, k: int, wavelengths_m: tuple[float, float]):
     """A smooth zero-mean field of unit variance: a sum of ``k`` plane waves."""
     lam = rng.uniform(*wavelengths_m, k)
@@ -200,9 +270,9 @@ def default_textures_dir() -> Path:
     return DEFAULT_TEXTURES_DIR
 
 
-def _gain(r_m: np.ndarray) -> np.ndarray:
+def _gain(r_m: np.ndarray, max_range_m: float = MAX_RANGE_M) -> np.ndarray:
     """Residual gain after TVG: beam pattern darkening the first metres, far-range loss."""
-    return (0.55 + 0.45 * np.clip(r_m / 15.0, 0.0, 1.0)) * (1.0 - 0.4 * (r_m / MAX_RANGE_M) ** 2)
+    return (0.55 + 0.45 * np.clip(r_m / 15.0, 0.0, 1.0)) * (1.0 - 0.4 * (r_m / max_range_m) ** 2)
 
 
 def _load_texture(textures_dir: Path, rng: np.random.Generator) -> tuple[np.ndarray, str]:
@@ -297,6 +367,8 @@ class _Leg:
     nav_drift_m_per_100m: tuple[float, float]
     nav_wobble: tuple[float, float, float]
     """(amplitude_m, wavelength_m, phase_rad) of a slow across-track wander of the nav."""
+    dx_m: float = DX_M
+    max_range_m: float = MAX_RANGE_M
 
     @property
     def along(self) -> np.ndarray:
@@ -314,9 +386,10 @@ class _Leg:
         return float(d @ self.along), float(d @ self.side_unit(side))
 
     def covers(self, e: float, n: float) -> bool:
-        """Inside this leg's imaged swath: ground range 5-60 m either side, along-track inside."""
+        """Inside this leg's imaged swath: ground range 5 m to the maximum range either side,
+        along-track inside."""
         a, c = self.leg_coords(e, n, "stbd")
-        return 0.0 <= a <= (self.pings - 1) * DX_M and NADIR_GAP_M <= abs(c) <= MAX_RANGE_M
+        return 0.0 <= a <= (self.pings - 1) * self.dx_m and NADIR_GAP_M <= abs(c) <= self.max_range_m
 
     def nav_error(self, along_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(east, north) error of the recorded nav at along-track positions."""
@@ -327,9 +400,10 @@ class _Leg:
                 self.nav_offset_m[1] + self.nav_drift_m_per_100m[1] * along_m / 100.0 + wob * st[1])
 
 
-def _make_legs(rng: np.random.Generator, legs: int, leg_length_m: float) -> list[_Leg]:
-    pings = int(round(leg_length_m / DX_M)) + 1
-    dt = DX_M / SPEED_M_S
+def _make_legs(rng: np.random.Generator, legs: int, leg_length_m: float, v: Variant = Variant()) -> list[_Leg]:
+    dx = v.pixel_m
+    pings = int(round(leg_length_m / dx)) + 1
+    dt = dx / SPEED_M_S
     out = []
     for k in range(legs):
         north = k % 2 == 0
@@ -337,11 +411,11 @@ def _make_legs(rng: np.random.Generator, legs: int, leg_length_m: float) -> list
         dmag, dang = rng.uniform(0.1, 0.3), rng.uniform(0.0, 2 * np.pi)
         wob = (float(rng.uniform(0.05, 0.15)), float(rng.uniform(60.0, 150.0)), float(rng.uniform(0.0, 2 * np.pi)))
         out.append(_Leg(index=k, heading_deg=0.0 if north else 180.0, start_e_m=k * LEG_SPACING_M,
-                        start_n_m=0.0 if north else (pings - 1) * DX_M, pings=pings,
+                        start_n_m=0.0 if north else (pings - 1) * dx, pings=pings,
                         t0_s=EPOCH_S + k * ((pings - 1) * dt + TURN_S),
                         nav_offset_m=(float(mag * math.sin(ang)), float(mag * math.cos(ang))),
                         nav_drift_m_per_100m=(float(dmag * math.sin(dang)), float(dmag * math.cos(dang))),
-                        nav_wobble=wob))
+                        nav_wobble=wob, dx_m=dx, max_range_m=v.max_range_m))
     return out
 
 
@@ -412,7 +486,8 @@ class _Placer:
         return False
 
 
-def _populate(rng: np.random.Generator, legs: list[_Leg], leg_length_m: float) -> list[_Object]:
+def _populate(rng: np.random.Generator, legs: list[_Leg], leg_length_m: float,
+              max_range_m: float = MAX_RANGE_M) -> list[_Object]:
     nl = len(legs)
     margin = min(8.0, leg_length_m / 5)
     e_max = LEG_SPACING_M * (nl - 1)
@@ -432,7 +507,7 @@ def _populate(rng: np.random.Generator, legs: list[_Leg], leg_length_m: float) -
         return base + float(rng.uniform(-2.5, 2.5)), north()
 
     def outside() -> tuple[float, float]:  # beyond the first or last leg: one look
-        d = float(rng.uniform(NADIR_GAP_M + 3.0, MAX_RANGE_M - 5.0))
+        d = float(rng.uniform(NADIR_GAP_M + 3.0, max_range_m - 5.0))
         return (-d if rng.random() < 0.5 else e_max + d), north()
 
     shapes = ["cylinder"] * 5 + ["truncated_cone"] * 4 + ["wedge"] * 4 + ["dome"] * 3
@@ -447,11 +522,11 @@ def _populate(rng: np.random.Generator, legs: list[_Leg], leg_length_m: float) -
             raise ValueError(f"could not place one-leg object {i}: the scene is too small")
         seen = [lg.index for lg in legs if lg.covers(obj.east_m, obj.north_m)]
         obj.shown_on_leg = int(seen[int(rng.integers(len(seen)))])
-    area_m2 = (e_max + 2 * MAX_RANGE_M) * (leg_length_m - 2 * margin)
+    area_m2 = (e_max + 2 * max_range_m) * (leg_length_m - 2 * margin)
     n_rocks = max(40, min(int(rng.integers(40, 111)), int(area_m2 / 80.0)))
     for i in range(n_rocks):
         rock = _rock(rng, target_like=i < 10)
-        ok = pl.place(rock, lambda: (float(rng.uniform(-MAX_RANGE_M + 2, e_max + MAX_RANGE_M - 2)), north()))
+        ok = pl.place(rock, lambda: (float(rng.uniform(-max_range_m + 2, e_max + max_range_m - 2)), north()))
         if not ok and i < 40:
             raise ValueError(f"could not place rock {i}: the scene is too small")
     return pl.placed
@@ -466,10 +541,12 @@ NU_VARIATION = 0.15
 
 
 def _render_side(leg: _Leg, side: str, rows: np.ndarray, objects: list[_Object], seabed: _Seabed,
-                 altitude_m: np.ndarray, nu: float, nu_field: Callable, rng: np.random.Generator) -> np.ndarray:
+                 altitude_m: np.ndarray, nu: float, nu_field: Callable, rng: np.random.Generator,
+                 v: Variant = Variant()) -> np.ndarray:
     """Intensity (rows, cols) of one side of the pings ``rows`` of ``leg``, float32, NaN in the nadir gap."""
-    r = DR_M * np.arange(int(round(MAX_RANGE_M / DR_M)) + 1)
-    along = rows * DX_M
+    px_m = v.pixel_m
+    r = px_m * np.arange(int(round(v.max_range_m / px_m)) + 1)
+    along = rows * px_m
     su = leg.side_unit(side)
     pe = leg.start_e_m + along * leg.along[0]
     pn = leg.start_n_m + along * leg.along[1]
@@ -479,10 +556,10 @@ def _render_side(leg: _Leg, side: str, rows: np.ndarray, objects: list[_Object],
     refl = seabed.reflectivity(e, n)
     for o in objects:  # local height patches on the ground-range samples
         a_o, c_o = leg.leg_coords(o.east_m, o.north_m, side)
-        i0 = max(int(math.floor((a_o - o.extent_m - along[0]) / DX_M)), 0)
-        i1 = min(int(math.ceil((a_o + o.extent_m - along[0]) / DX_M)) + 1, rows.size)
-        j0 = max(int(math.floor((c_o - o.extent_m) / DR_M)), 0)
-        j1 = min(int(math.ceil((c_o + o.extent_m) / DR_M)) + 1, r.size)
+        i0 = max(int(math.floor((a_o - o.extent_m - along[0]) / px_m)), 0)
+        i1 = min(int(math.ceil((a_o + o.extent_m - along[0]) / px_m)) + 1, rows.size)
+        j0 = max(int(math.floor((c_o - o.extent_m) / px_m)), 0)
+        j1 = min(int(math.ceil((c_o + o.extent_m) / px_m)) + 1, r.size)
         if i0 >= i1 or j0 >= j1:
             continue
         sl = (slice(i0, i1), slice(j0, j1))
@@ -490,18 +567,22 @@ def _render_side(leg: _Leg, side: str, rows: np.ndarray, objects: list[_Object],
         height[sl] += z
         refl[sl] = np.where(z > 0.005, 10.0 ** (o.reflectivity_db / 10.0), refl[sl])
     h = altitude_m[:, None]
-    r_safe = np.maximum(r, 0.5 * DR_M)[None, :]
+    r_safe = np.maximum(r, 0.5 * px_m)[None, :]
     # Lit iff the depression slope to the point is no steeper than to any nearer sample.
     slope = (h - height) / r_safe
     lit = slope <= np.minimum.accumulate(slope, axis=1)
     # Lambert's law on the local incidence from the slope along range, over a flat bed's.
-    g = np.gradient(height, DR_M, axis=1)
+    g = np.gradient(height, px_m, axis=1)
     dz = h - height
     cos_loc = np.clip((dz + r_safe * g) / (np.hypot(r_safe, dz) * np.sqrt(1.0 + g * g)), 0.0, None)
     cos_flat = h / np.hypot(r_safe, h)
-    mean = LEVEL * refl * (cos_loc / cos_flat) ** 2 * _gain(r)[None, :] * lit
+    mean = LEVEL * refl * (cos_loc / cos_flat) ** 2 * _gain(r, v.max_range_m)[None, :] * lit
     nu_px = nu * np.exp(NU_VARIATION * nu_field(e, n))
-    px = k_intensity(mean, nu_px, rng) + NOISE_FLOOR * LEVEL * rng.exponential(1.0, mean.shape)
+    if v.texture_m > 0 or v.speckle_px > 0:
+        k = k_intensity_correlated(mean, nu_px, rng, texture_px=v.texture_m / px_m, speckle_px=v.speckle_px)
+    else:
+        k = k_intensity(mean, nu_px, rng)
+    px = k + NOISE_FLOOR * LEVEL * rng.exponential(1.0, mean.shape)
     px[:, r < NADIR_GAP_M] = np.nan
     return px.astype(np.float32)
 
@@ -520,7 +601,7 @@ def _r(x: float, nd: int = 6) -> float:
 
 def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, legs: int = 5,
                    leg_length_m: float = 200.0, progress: Progress | None = None,
-                   textures_dir: str | os.PathLike[str] | None = None) -> HeldoutScene:
+                   textures_dir: str | os.PathLike[str] | None = None, variant: str = "base") -> HeldoutScene:
     """Render one held-out lawnmower mission into ``out_dir``.
 
     Parameters
@@ -545,6 +626,9 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
     textures_dir
         Folder of SAS texture PNGs for ``seabed="sassed"``; default ``$ATR_SAS_TEXTURES`` or
         ``shared/data/real/sas_textures`` beside the repository.
+    variant
+        A name of :data:`VARIANTS`: ``base`` (the benchmark's scenes) or a stress variant of
+        the same seed (other pixel size, seabed statistics, altitude and range).
 
     Raises
     ------
@@ -561,16 +645,19 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
         raise ValueError(f"legs must be an integer in [2, 200], got {legs!r}")
     if not (math.isfinite(leg_length_m) and 30.0 <= leg_length_m <= 20000.0):
         raise ValueError(f"leg_length_m must be in [30, 20000], got {leg_length_m!r}")
+    if variant not in VARIANTS:
+        raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {variant!r}")
+    v = VARIANTS[variant]
     tex_dir = Path(textures_dir) if textures_dir is not None else default_textures_dir()
     rng = _rng(seed, seabed)
-    lines = _make_legs(rng, int(legs), float(leg_length_m))
+    lines = _make_legs(rng, int(legs), float(leg_length_m), v)
     e_max = LEG_SPACING_M * (legs - 1)
-    box = (-MAX_RANGE_M - 5.0, e_max + MAX_RANGE_M + 5.0, -5.0, leg_length_m + 5.0)
+    box = (-v.max_range_m - 5.0, e_max + v.max_range_m + 5.0, -5.0, leg_length_m + 5.0)
     bed = _Seabed(seabed, rng, tex_dir, box)
     nu = float(math.exp(rng.uniform(math.log(2.0), math.log(30.0))))
     nu_field = _slow_field(rng, 4, (30.0, 90.0))
     swell_period_s, swell_phase = float(rng.uniform(40.0, 90.0)), float(rng.uniform(0.0, 2 * np.pi))
-    objects = _populate(rng, lines, float(leg_length_m))
+    objects = _populate(rng, lines, float(leg_length_m), v.max_range_m)
     dropouts = {lg.index: sorted({int(p0 + d) for p0, w in zip(rng.integers(0, lg.pings - 3, int(rng.integers(3, 7))),
                                                               rng.integers(1, 4, 7)) for d in range(int(w))})
                 for lg in lines}
@@ -580,10 +667,6 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
         raise ValueError(f"{final} exists and is not a folder")
     made = not final.exists()
     final.mkdir(parents=True, exist_ok=True)
-    # every file is written into a fresh folder inside the scene's (so on its file system: the
-    # moves are renames) and moved into place when the whole scene is done, scene.json last:
-    # an interrupted or failed run leaves no half-written scene, and a reader that sees
-    # scene.json sees the rest whole
     # every file is written under a hidden temporary name in the scene's folder (atomic_path: on
     # its file system, so the moves are renames) and renamed into place when the whole scene is
     # done, scene.json last (entered first, left last): an interrupted or failed run leaves no
@@ -592,21 +675,22 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
     try:
         with contextlib.ExitStack() as stack:
             tmp = {p: stack.enter_context(atomic_path(p)) for p in (scene_json, atrlog, truth, clutter, one_leg_csv)}
-            name = f"heldout-{seabed}-{seed}"
+            name = f"heldout-{seabed}-{seed}" + ("" if v.name == "base" else f"-{v.name}")
             frame = MissionFrame("ltp", ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
-            dt = DX_M / SPEED_M_S
+            dt = v.pixel_m / SPEED_M_S
+            tile_pings = v.tile_pings
             seq = {"port": 0, "stbd": 0}
-            total = sum(-(-lg.pings // TILE_PINGS) for lg in lines)
+            total = sum(-(-lg.pings // tile_pings) for lg in lines)
             done = 0
             with AtrLogWriter(tmp[atrlog], flush_every=64) as writer:
                 for lg in lines:
                     shown = [o for o in objects if o.shown_on_leg in (None, lg.index)]
                     drop = np.array(dropouts[lg.index], dtype=np.int64)
-                    for row0 in range(0, lg.pings, TILE_PINGS):
-                        rows = np.arange(row0, min(row0 + TILE_PINGS, lg.pings), dtype=np.float64)
+                    for row0 in range(0, lg.pings, tile_pings):
+                        rows = np.arange(row0, min(row0 + tile_pings, lg.pings), dtype=np.float64)
                         t = lg.t0_s + rows * dt
-                        alt = ALTITUDE_M + SWELL_M * np.sin(2 * np.pi * (t - EPOCH_S) / swell_period_s + swell_phase)
-                        along = rows * DX_M
+                        alt = v.altitude_m + SWELL_M * np.sin(2 * np.pi * (t - EPOCH_S) / swell_period_s + swell_phase)
+                        along = rows * v.pixel_m
                         ee, en = lg.nav_error(along)
                         lat, lon = frame.to_latlon(lg.start_e_m + along * lg.along[0] + ee,
                                                    lg.start_n_m + along * lg.along[1] + en)
@@ -614,10 +698,11 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                                       altitude_m=alt)
                         lost = drop[(drop >= row0) & (drop < row0 + rows.size)] - row0
                         for j, side in enumerate(("port", "stbd")):
-                            px = _render_side(lg, side, rows, shown, bed, alt, nu, nu_field, rng)
+                            px = _render_side(lg, side, rows, shown, bed, alt, nu, nu_field, rng, v)
                             px[lost] = np.nan
                             tile = Tile(mission=name, leg=lg.index, side=side, seq=seq[side], pixels=px, kind="intensity",
-                                        range0_m=0.0, dr_m=DR_M, dx_m=DX_M, slant=False, ping_time=t, nav=nav, sensor=SENSOR)
+                                        range0_m=0.0, dr_m=v.pixel_m, dx_m=v.pixel_m, slant=False, ping_time=t, nav=nav,
+                                        sensor=SENSOR)
                             seq[side] += 1
                             writer.write(float(t[-1]) + TILE_LATENCY_S + 0.01 * j, "sonar", tile.to_map())
                         done += 1
@@ -636,8 +721,8 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                 "use": "evaluation only: never calibrate on it or choose a setting with it",
                 "mission": name, "seabed": bed.info, "seed": int(seed), "legs": int(legs), "leg_length_m": _r(leg_length_m),
                 "frame": frame.to_dict(), "leg_spacing_m": LEG_SPACING_M, "nadir_gap_m": NADIR_GAP_M,
-                "max_range_m": MAX_RANGE_M, "dr_m": DR_M, "dx_m": DX_M, "tile_pings": TILE_PINGS,
-                "speed_m_s": SPEED_M_S, "altitude_m": ALTITUDE_M, "swell_m": SWELL_M,
+                "max_range_m": v.max_range_m, "dr_m": v.pixel_m, "dx_m": v.pixel_m, "tile_pings": tile_pings,
+                "speed_m_s": SPEED_M_S, "altitude_m": v.altitude_m, "swell_m": SWELL_M,
                 "swell_period_s": _r(swell_period_s), "swell_phase_rad": _r(swell_phase),
                 "speckle": {"model": "K: mean * Gamma(nu, 1/nu) * Exp(1)", "nu": _r(nu), "nu_variation": NU_VARIATION},
                 "level": LEVEL, "noise_floor": NOISE_FLOOR,
@@ -655,6 +740,8 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                 "counts": {"tiles": 2 * total, "targets": len(targets), "rocks": len(rocks),
                            "rocks_target_like": sum(1 for o in rocks if o.params["target_like"]), "one_leg": len(one_leg)},
             }
+            if v.name != "base":  # the base scenes' scene.json stays as it was
+                scene["variant"] = v.info()
             tmp[scene_json].write_text(json.dumps(scene, indent=1, sort_keys=True) + "\n")
             scene_json.unlink(missing_ok=True)  # an older scene there: never half old, half new
     except BaseException:
@@ -713,6 +800,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--leg-length-m", type=float, default=200.0, help="length of each leg (default 200)")
     ap.add_argument("--textures", default=None, help=f"SAS texture folder for --seabed sassed (default ${TEXTURES_ENV} "
                                                      f"or {default_textures_dir()})")
+    ap.add_argument("--variant", default="base", choices=list(VARIANTS),
+                    help="base (default: the benchmark's scenes) or a stress variant of the same seed: "
+                         + "; ".join(f"{v.name}: " + ", ".join(f"{k} {x:g}" for k, x in vars(v).items()
+                                                                if k != "name" and x != getattr(Variant(), k))
+                                     for v in VARIANTS.values() if v.name != "base"))
     ap.add_argument("--quiet", action="store_true", help="no progress line")
     args = ap.parse_args(argv)
 
@@ -721,7 +813,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         sc = generate_scene(args.out, seabed=args.seabed, seed=args.seed, legs=args.legs,
                             leg_length_m=args.leg_length_m, progress=None if args.quiet else show,
-                            textures_dir=args.textures)
+                            textures_dir=args.textures, variant=args.variant)
     except (ValueError, OSError) as exc:
         print(f"heldout: error: {exc}", file=sys.stderr)
         return 1

@@ -63,6 +63,27 @@ def test_quality_benchmark_scores_a_real_recording_for_every_method(real_data, t
 def test_quality_benchmark_usage_errors(capsys):
     assert bench_quality.main(["--seabeds", "mud"]) == 2
     assert "unknown seabed" in capsys.readouterr().err
+    assert bench_quality.main(["--variants", "base,blurry"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--variants 'base,blurry'" in err and "clumpy" in err
+
+
+def test_a_variant_is_its_own_scene_and_reused_only_as_itself(tmp_path):
+    """--variants: each variant of a seed in its own folder; a base scene is never taken for a
+    variant's (nor the other way round)."""
+    out = tmp_path / "q"
+    args = ["--seabeds", "sand", "--seeds", "7", "--legs", "2", "--leg-length", "60", "--online-calibration", "off",
+            "--out", str(out), "--recordings", "none", "--json", str(tmp_path / "q.json")]
+    assert bench_quality.main(args + ["--variants", "base,coarse"]) == 0
+    got = json.loads((tmp_path / "q.json").read_text())
+    assert [s["scene"] for s in got["scenes"]] == ["sand-7-2x60", "sand-7-2x60-coarse"]
+    coarse = json.loads((out / "sand-7-2x60-coarse" / "scene.json").read_text())
+    assert coarse["variant"]["name"] == "coarse" and coarse["dr_m"] == 0.2
+    assert "variant" not in json.loads((out / "sand-7-2x60" / "scene.json").read_text())
+    assert bench_quality._reusable(out / "sand-7-2x60", "sand", 7, 2, 60.0, "base")
+    assert not bench_quality._reusable(out / "sand-7-2x60", "sand", 7, 2, 60.0, "coarse")
+    assert not bench_quality._reusable(out / "sand-7-2x60-coarse", "sand", 7, 2, 60.0, "base")
+    assert bench_quality._reusable(out / "sand-7-2x60-coarse", "sand", 7, 2, 60.0, "coarse")
 
 
 def test_covering_legs_is_the_node_s_coverage_at_pd_0_8():

@@ -245,6 +245,54 @@ def test_k_intensity_has_the_k_distribution_second_moment():
         assert m2 == pytest.approx(2 * (1 + 1 / nu), rel=0.03), nu
 
 
+def test_correlated_k_intensity_keeps_the_k_marginal():
+    """The clumpy variant's texture (Gaussian copula) and speckle (smoothed complex Gaussian)
+    keep the K distribution's mean and second moment, 2 (1 + 1/nu) [1]."""
+    rng = np.random.default_rng(11)
+    for nu in (2.0, 8.0):
+        i = heldout.k_intensity_correlated(np.full((800, 800), 3.0), nu, rng, texture_px=4.0, speckle_px=0.8)
+        assert i.mean() == pytest.approx(3.0, rel=0.03)
+        assert np.mean(i * i) / i.mean() ** 2 == pytest.approx(2 * (1 + 1 / nu), rel=0.06), nu
+
+
+def _lag1(x: np.ndarray) -> float:
+    x = (x - x.mean()) / x.std()
+    return float(np.mean(x[:, 1:] * x[:, :-1]))
+
+
+def test_oversampled_speckle_has_the_correlation_of_its_smoothing():
+    """|c|^2 of complex white noise smoothed by a Gaussian of s pixels: the field's correlation
+    at lag d is exp(-d^2 / (4 s^2)), the intensity's its square (circular Gaussian field):
+    exp(-d^2 / (2 s^2)), 0.458 at d = 1, s = 0.8. The base speckle is uncorrelated."""
+    rng = np.random.default_rng(12)
+    mean = np.ones((1000, 1000))
+    sp = heldout.k_intensity_correlated(mean, 1e7, rng, texture_px=0.0, speckle_px=0.8)  # nu -> inf: G = 1
+    assert _lag1(sp) == pytest.approx(math.exp(-1.0 / (2 * 0.8 ** 2)), abs=0.02)
+    assert abs(_lag1(k_intensity(mean, 1e7, rng))) < 0.01
+
+
+def test_variants_change_the_survey_and_leave_the_base_scene_alone(sand, tmp_path):
+    assert "variant" not in json.loads((sand / "scene.json").read_text())
+    fine = generate_scene(tmp_path / "fine", seabed="sand", seed=7, variant="fine", **SMALL)
+    scene = json.loads(fine.scene_json.read_text())
+    assert scene["variant"]["name"] == "fine" and scene["dr_m"] == 0.05 and scene["tile_pings"] == 512
+    tiles = _tiles(tmp_path / "fine")
+    assert {(t.dr_m, t.dx_m) for t in tiles} == {(0.05, 0.05)} and max(t.rows for t in tiles) == 512
+    assert tiles[0].cols == 1201  # 0-60 m
+    base_truth, fine_truth = _rows(sand / "truth.csv"), _rows(tmp_path / "fine" / "truth.csv")
+    assert [r["shape"] for r in fine_truth] == [r["shape"] for r in base_truth]
+    high = generate_scene(tmp_path / "high", seabed="sand", seed=7, variant="high", **SMALL)
+    tiles = _tiles(tmp_path / "high")
+    assert tiles[0].cols == 1001  # 0-100 m at 0.1 m
+    alt = np.concatenate([t.nav.altitude_m for t in tiles])
+    assert abs(alt.mean() - 15.0) < 0.3 and alt.max() - alt.min() <= 2 * heldout.SWELL_M + 1e-6
+    for r in _rows(tmp_path / "high" / "truth.csv"):
+        assert r["seen_by_legs"]  # every target inside some leg's 5-100 m swath
+    assert high.targets == 16
+    with pytest.raises(ValueError, match="variant must be one of"):
+        generate_scene(tmp_path / "x", seabed="sand", seed=7, variant="blurry", **SMALL)
+
+
 def test_a_flat_patch_of_a_scene_is_k_distributed(tmp_path):
     out = tmp_path / "s"
     sc = generate_scene(out, seabed="sand", seed=4, legs=2, leg_length_m=120.0)

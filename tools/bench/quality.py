@@ -384,6 +384,9 @@ def main_heldout(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seabeds", default="sand,ripples,sassed", help="comma-separated (sand, ripples, sassed)")
     ap.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated held-out seeds")
+    ap.add_argument("--variants", default="base", metavar="NAME[,NAME]",
+                    help="scene variants (atr_node.evaluation.heldout.VARIANTS): base (default, the benchmark), or "
+                         "stress variants of the same seeds: fine, coarse, clumpy, high, low; 'all' = every one")
     ap.add_argument("--legs", type=int, default=5)
     ap.add_argument("--leg-length", type=float, default=200.0, help="metres")
     ap.add_argument("--config", default=None, help="node settings (TOML; default built-in)")
@@ -397,7 +400,7 @@ def main_heldout(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from atr_node.config import load_settings
     from atr_node.errors import AtrError
-    from atr_node.evaluation.heldout import SEABEDS
+    from atr_node.evaluation.heldout import SEABEDS, VARIANTS
 
     try:
         settings = load_settings(args.config)
@@ -414,6 +417,11 @@ def main_heldout(argv: list[str] | None = None) -> int:
     except ValueError:
         print(f"bench_quality: --seeds {args.seeds!r}: expected comma-separated integers", file=sys.stderr)
         return 2
+    variants = list(VARIANTS) if args.variants == "all" else [v for v in args.variants.split(",") if v]
+    bad = [v for v in variants if v not in VARIANTS]
+    if bad or not variants:
+        print(f"bench_quality: --variants {args.variants!r}: expected 'all' or some of {list(VARIANTS)}", file=sys.stderr)
+        return 2
     legs, length = args.legs, args.leg_length
     if args.quick:
         seabeds, seeds, legs, length = ["sand"], [seeds[0]], 3, 80.0
@@ -424,7 +432,7 @@ def main_heldout(argv: list[str] | None = None) -> int:
         print(f"bench_quality: {exc}", file=sys.stderr)
         return 2
     with lock:
-        return _heldout_run(args, out, settings, seabeds, seeds, legs, length, argv)
+        return _heldout_run(args, out, settings, seabeds, seeds, legs, length, argv, variants)
 
 
 def _lock_folder(out: Path):
@@ -449,14 +457,15 @@ def _lock_folder(out: Path):
     return fh
 
 
-def _reusable(d: Path, seabed: str, seed: int, legs: int, length: float) -> bool:
+def _reusable(d: Path, seabed: str, seed: int, legs: int, length: float, variant: str = "base") -> bool:
     """A scene folder a finished run of this generator made for these parameters."""
-    from atr_node.evaluation.heldout import GENERATOR_VERSION, SCENE_FILES
+    from atr_node.evaluation.heldout import GENERATOR_VERSION, SCENE_FILES, VARIANTS
 
     try:
         scene = json.loads((d / "scene.json").read_text())
         same = (scene["generator_version"] == GENERATOR_VERSION and scene["seed"] == seed and scene["legs"] == legs
-                and math.isclose(float(scene["leg_length_m"]), length) and scene["seabed"]["kind"] == seabed)
+                and math.isclose(float(scene["leg_length_m"]), length) and scene["seabed"]["kind"] == seabed
+                and scene.get("variant", VARIANTS["base"].info()) == VARIANTS[variant].info())
     except (OSError, ValueError, TypeError, KeyError):
         return False
     return same and all((d / f).is_file() for f in SCENE_FILES)
@@ -471,34 +480,33 @@ def _write_whole(path: Path, text: str) -> None:
         fh.write(text)
 
 
-def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv) -> int:
+def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv, variants=("base",)) -> int:
     from atr_node.errors import AtrError
     from atr_node.evaluation.heldout import SCENE_FILES, generate_scene
     from atr_node.io.atomic import leftover_temporaries
 
     results = []
-    for sb in seabeds:
-        for seed in seeds:
-            d = out / f"{sb}-{seed}-{legs}x{length:g}"
-            for f in SCENE_FILES:  # a killed generation's temporary files (this run holds the folder)
-                for left in leftover_temporaries(d / f):
-                    left.unlink(missing_ok=True)
-            if not _reusable(d, sb, seed, legs, length):
-                try:
-                    generate_scene(d, seabed=sb, seed=seed, legs=legs, leg_length_m=length)
-                except (ValueError, OSError) as exc:
-                    print(f"bench_quality: {d.name}: {exc}", file=sys.stderr)
-                    return 1
-            print(f"{d.name}: scoring ...", file=sys.stderr, flush=True)
+    for variant, sb, seed in ((v, sb, seed) for v in variants for sb in seabeds for seed in seeds):
+        d = out / (f"{sb}-{seed}-{legs}x{length:g}" + ("" if variant == "base" else f"-{variant}"))
+        for f in SCENE_FILES:  # a killed generation's temporary files (this run holds the folder)
+            for left in leftover_temporaries(d / f):
+                left.unlink(missing_ok=True)
+        if not _reusable(d, sb, seed, legs, length, variant):
             try:
-                results.append(score_scene(d, settings, online=args.online_calibration))
-            except AtrError as exc:
+                generate_scene(d, seabed=sb, seed=seed, legs=legs, leg_length_m=length, variant=variant)
+            except (ValueError, OSError) as exc:
                 print(f"bench_quality: {d.name}: {exc}", file=sys.stderr)
                 return 1
-            print(f"{d.name}: {results[-1]['seconds']} s", file=sys.stderr, flush=True)
-            harness.record(f"scene {d.name}: replay and scoring", [float(results[-1]["seconds"])], clock="wall")
-            ds = results[-1]["methods"].get("DS look (default)", {})
-            harness.value(f"{d.name} DS look pd_max", ds.get("pd_max"))
+        print(f"{d.name}: scoring ...", file=sys.stderr, flush=True)
+        try:
+            results.append(score_scene(d, settings, online=args.online_calibration))
+        except AtrError as exc:
+            print(f"bench_quality: {d.name}: {exc}", file=sys.stderr)
+            return 1
+        print(f"{d.name}: {results[-1]['seconds']} s", file=sys.stderr, flush=True)
+        harness.record(f"scene {d.name}: replay and scoring", [float(results[-1]["seconds"])], clock="wall")
+        ds = results[-1]["methods"].get("DS look (default)", {})
+        harness.value(f"{d.name} DS look pd_max", ds.get("pd_max"))
     if args.recordings is None:
         rr = _real_tool()
         paths = [] if args.quick else [p for p in (rr.SHARED / name for name in rr.DEFAULT_FILES) if p.is_file()]
