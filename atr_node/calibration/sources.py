@@ -1,7 +1,8 @@
 """Target-free images to calibrate on: recordings, seabed pictures or synthetic seabeds.
 
-- ``.atrlog`` and ``.xtf`` recordings: their sonar tiles (ICD section 1), slant tiles put on
-  ground range at their nav altitude.
+- ``.atrlog``, ``.xtf`` and ``.jsf`` recordings: their sonar tiles (ICD section 1), slant tiles
+  put on ground range at their nav altitude, amplitude squared into intensity as the node
+  scores it.
 - ``.png`` (or any 8-bit picture OpenCV reads): display amplitude a in [0, 255]; intensity
   (a / 255)^2, pixel size and first range given by the caller (the SASSED crops of
   ``shared/data/real/sas_textures`` state no pixel size).
@@ -79,19 +80,14 @@ def synthetic_images(n: int, *, settings: Any, rows: int, cols: int, seed: int, 
 
 
 def images_from_recording(path: str | Path, *, settings: Any, max_images: int, crs: str = "") -> list[CalibrationImage]:
-    """The first ``max_images`` sonar tiles of a recording (``.atrlog``, or ``.xtf`` through
-    :func:`atr_node.io.xtf.iter_xtf_records`, its positions in ``crs`` if projected metres)."""
+    """The first ``max_images`` sonar tiles of a recording (``.atrlog``, ``.xtf`` or ``.jsf``,
+    read as replay reads it: :func:`atr_node.node.service.open_recording`, positions in ``crs``
+    if projected metres)."""
+    from ..node.service import open_recording
     from ..records.tile import Tile
 
-    if str(path).lower().endswith(".xtf"):
-        from ..io.xtf import iter_xtf_records
-
-        records = iter_xtf_records(path, altitude=settings.recording.altitude, crs=crs,
-                                   frequency=settings.recording.frequency)
-    else:
-        from ..io.atrlog import read_atrlog
-
-        records = read_atrlog(path)
+    rec_s = settings.recording
+    records = open_recording(path, crs=crs, altitude=rec_s.altitude, frequency=rec_s.frequency)
     out: list[CalibrationImage] = []
     for rec in records:
         if rec.link != "sonar":
@@ -118,15 +114,15 @@ def image_from_picture(path: str | Path, *, pixel_m: float, range0_m: float, alt
 
 def images_from_paths(paths: Sequence[str | Path], *, settings: Any, max_images: int, pixel_m: float | None,
                       range0_m: float | None, crs: str = "") -> list[CalibrationImage]:
-    """Images from recordings (``.atrlog``, ``.xtf``; ``crs`` of XTF positions in projected
-    metres, ``--crs``) and pictures (anything else OpenCV reads)."""
+    """Images from recordings (``.atrlog``, ``.xtf``, ``.jsf``; ``crs`` of positions in
+    projected metres, ``--crs``) and pictures (anything else OpenCV reads)."""
     sen = settings.sensor
     out: list[CalibrationImage] = []
     for p in paths:
         p = Path(p)
         if not p.exists():
             raise AtrError(f"{p}: no such file")
-        if p.suffix.lower() in (".atrlog", ".xtf"):
+        if p.suffix.lower() in (".atrlog", ".xtf", ".jsf"):
             out.extend(images_from_recording(p, settings=settings, max_images=max_images, crs=crs))
         else:
             out.append(image_from_picture(p, pixel_m=pixel_m or sen.dr_m,

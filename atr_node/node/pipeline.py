@@ -459,6 +459,9 @@ class Pipeline:
         log.debug("mission frame: %s", self.frame.name)
 
     def _on_tile(self, tile: Tile) -> None:
+        # amplitude tiles (XTF and JSF files) are scored, calibrated on and shown as intensity,
+        # as every other tile: the detectors' levels are intensity levels (SPEC 2)
+        tile = tile.as_intensity()
         # bound the INS track on long missions (it grew by every fix for the whole mission;
         # found by tools/soak.py): older fixes could only serve a tile arriving that late
         self.track.forget_before(float(tile.ping_time[0]) - NAV_KEEP_S)

@@ -88,6 +88,16 @@ def test_image_from_a_slant_tile_is_on_ground_range():
     assert im.range0_m == ref.range0_m and im.altitude_m == 14.0 and im.name == tile.ident
 
 
+def test_image_from_an_amplitude_tile_is_its_intensity():
+    """Calibration images are what the node scores: an amplitude tile squared (Tile.as_intensity)."""
+    from atr_node.records.tile import Tile
+
+    amp = np.random.default_rng(1).rayleigh(1.0, size=(40, 120)).astype(np.float32)
+    tile = Tile("m", 0, "stbd", 0, amp, "amplitude", 5.0, 0.1, 0.1, False, 1e9 + np.arange(40) * 0.1)
+    im = CalibrationImage.from_tile(tile, altitude_m=10.0)
+    np.testing.assert_allclose(im.pixels, amp.astype(np.float64) ** 2, rtol=1e-7)
+
+
 def test_collect_is_deterministic_and_pools_images():
     s = Settings(detectors=DetectorSettings(enabled=("mf", "z")))
     ims = synthetic_images(2, settings=s, rows=200, cols=400, seed=5, seabed="silt")

@@ -287,6 +287,25 @@ def test_one_ping_tiles_give_the_same_contacts(mission):
     assert_same_contacts(want, contacts(settings, cut))
 
 
+def test_amplitude_tiles_give_the_contacts_of_their_intensity(mission):
+    """A tile that says "amplitude" (XTF, JSF, another simulator) is squared into intensity
+    before anything scores it (SPEC 2's levels are intensity levels): the mission's tiles sent
+    as amplitude, sqrt of their intensity, give its contacts (to the float32 rounding of
+    sqrt then square). Before, the detectors scored the amplitude as it came."""
+    settings, records, want = mission
+    amp = []
+    for r in records:
+        if r.link == "sonar":
+            t = Tile.from_map(r.msg)
+            t = t.replace(pixels=np.sqrt(t.pixels).astype(np.float32), kind="amplitude")
+            r = LogRecord(r.t, r.link, t.to_map())
+        amp.append(r)
+    got = contacts(settings, amp)
+    r = compare(want, got, gate_m=1.0)
+    assert r["a"] == r["b"] == r["matched"] and len(want) >= 3, r
+    assert r["max_offset_m"] <= 0.01 and r["max_bel_diff"] <= 1e-4, r
+
+
 def test_recut_keeps_every_ping_and_numbers_seq_per_side(mission):
     _settings, records, _ = mission
     tiles = [Tile.from_map(r.msg) for r in records if r.link == "sonar"]

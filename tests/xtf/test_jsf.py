@@ -267,6 +267,23 @@ def test_convert_and_replay_accept_jsf(tmp_path, capsys):
     assert tiles[0].rows == 6
 
 
+def test_calibrate_takes_a_jsf_recording(tmp_path):
+    """calibrate --input survey.jsf reads its tiles as replay does (it was taken for a picture:
+    "not a picture OpenCV can read"); the images are intensity, as the node scores them."""
+    from atr_node.calibration.sources import images_from_paths
+    from atr_node.config import Settings
+
+    path = tmp_path / "small.jsf"
+    _write_small(path, data_format="analytic")
+    imgs = images_from_paths([path], settings=Settings(), max_images=4, pixel_m=None, range0_m=None)
+    tiles = _tiles(iter_jsf_records(path))
+    assert len(imgs) == 2 == len(tiles)
+    for im, t in zip(imgs, tiles):
+        assert im.name == t.ident
+        want = t.as_intensity().ground_range().pixels if t.slant else t.as_intensity().pixels
+        np.testing.assert_array_equal(im.pixels, want)
+
+
 def test_frequency_of_xtf_files_is_not_silently_ignored_on_jsf(tmp_path, caplog):
     """--frequency picks XTF channels; a JSF file says how its subsystem is chosen instead."""
     path = tmp_path / "small.jsf"
