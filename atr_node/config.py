@@ -575,7 +575,8 @@ class RecordingSettings:
 
     def __post_init__(self) -> None:
         _check(self.crs == self.crs.strip(), "recording.crs", "must not start or end with spaces")
-        frequency_choice(self.frequency, "recording.frequency")
+        # normalised: "HIGH" -> "high", "455" -> 455.0 (a string is a name to every reader)
+        object.__setattr__(self, "frequency", frequency_choice(self.frequency, "recording.frequency"))
 
 
 def frequency_choice(value: Any, option: str = "--frequency") -> str | float:

@@ -1,6 +1,6 @@
-"""``--crs`` and ``--frequency``, shared by the commands that read XTF (replay, convert, batch,
-calibrate; ICD v1.1 section 6): the command line's value wins over the ``recording.crs`` and
-``recording.frequency`` keys."""
+"""``--crs`` (ICD v1.1 section 6) and ``--frequency`` (the project's own), shared by the
+commands that read XTF (replay, convert, batch, calibrate, evaluate): the command line's value
+wins over the ``recording.crs`` and ``recording.frequency`` keys."""
 
 from __future__ import annotations
 

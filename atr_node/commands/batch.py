@@ -119,12 +119,14 @@ def run(args: argparse.Namespace) -> int:
             if not Path(path).is_file():
                 raise AtrError(f"{path}: cannot open: No such file or directory; expected a recording "
                                f"(.atrlog, .xtf or .jsf)")
-    from ..batch.grids import run_recordings
+    from ..batch.grids import check_positions, run_recordings
     from ..calibration.model import PerformanceModel
     from ..node.service import write_contacts
 
     from .replay import dropped_text
 
+    # files this host sees that need --crs or lack the --frequency asked: one line, before any worker starts
+    check_positions(args.recordings, settings.recording.crs, settings.recording.frequency)
     model = PerformanceModel.load(args.model) if args.model else PerformanceModel.shipped()
     t0 = time.perf_counter()
     with Engine(args.scheduler, args.workers, args.retries) as eng:

@@ -30,7 +30,8 @@ from ..io.atrlog import AtrLogReader, AtrLogWriter
 from ..io.xtf import DEFAULT_TILE_PINGS, XtfReader
 from ..io.xtf_write import XtfWriter
 from ..io.atomic import atomic_path
-from ._crs import add_crs_argument, add_frequency_argument, resolve_crs, resolve_frequency
+from ..config import frequency_choice
+from ._crs import add_crs_argument, add_frequency_argument, resolve_crs
 from ._inputs import require_sonar_tile
 
 EXIT_DETAIL = "convert: 1 also for an input that is not a recording or holds no sonar tile (OUT is then not written)"
@@ -113,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     if args.tile_pings < 1:
         raise AtrError(f"--tile-pings must be >= 1, got {args.tile_pings}")
     crs = resolve_crs(getattr(args, "crs", None))
-    frequency = resolve_frequency(getattr(args, "frequency", None)).recording.frequency
+    frequency = "high" if args.frequency is None else frequency_choice(args.frequency, "--frequency")
     if not dst.parent.is_dir():
         raise AtrError(f"{dst}: No such file or directory: no folder {dst.parent}")
     require_sonar_tile(src, crs=crs, frequency=frequency)

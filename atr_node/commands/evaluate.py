@@ -20,6 +20,7 @@ with --log the mosaic, belief map and P(y) figures) into --out.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 import sys
@@ -27,6 +28,7 @@ import time
 from pathlib import Path
 
 from ..config import load_settings
+from ._crs import add_crs_argument, add_frequency_argument, resolve_crs, resolve_frequency
 from ..errors import AtrError
 from ._endpoints import check_endpoint
 from ..operators.book import read_contacts
@@ -45,21 +47,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --log: calibrate on-line from the first tiles (default on)")
     parser.add_argument("--out", metavar="DIR", default="evaluation", help="output folder (default ./evaluation)")
     parser.add_argument("--bel", type=float, help="reporting threshold on Bel(T) (default fusion.report_bel)")
+    add_crs_argument(parser)  # with --log: an XTF's positions in projected metres (ICD v1.1 section 6)
+    add_frequency_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..evaluation.scoring import read_truth
 
-    settings = load_settings(args.config)
+    settings = resolve_frequency(getattr(args, "frequency", None), load_settings(args.config))
+    crs = resolve_crs(getattr(args, "crs", None), settings)
+    if crs != settings.recording.crs:  # --crs wins; the run reads it from the settings
+        settings = settings.replace(recording=dataclasses.replace(settings.recording, crs=crs))
     # every input checked before the output folder exists: a failure leaves nothing behind
     read_truth(args.truth)
     if args.bel is not None and not 0.0 <= args.bel <= 1.0:
         raise AtrError(f"--bel {args.bel:g}: expected a threshold on Bel(T) in [0, 1]")
     if args.log:
-        from ._crs import resolve_crs
         from ._inputs import require_sonar_tile
 
-        require_sonar_tile(args.log, crs=resolve_crs(None, settings))
+        require_sonar_tile(args.log, crs=crs, frequency=settings.recording.frequency)
     elif args.contacts:
         read_contacts(args.contacts)  # one line on a bad file, before --out exists
     else:

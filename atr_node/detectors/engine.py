@@ -235,7 +235,8 @@ def score_maps(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: float,
     Parameters
     ----------
     pixels : ndarray, shape (rows, cols)
-        Linear intensity or amplitude, ground range; NaN (any non-finite value) = no data.
+        Linear intensity (the node squares amplitude tiles first: ``Tile.as_intensity``; the
+        levels of SPEC 2 are intensity levels), ground range; NaN (any non-finite value) = no data.
     range0_m, dr_m : float
         Ground range of column 0 and column spacing, metres.
     dx_m : float

@@ -724,7 +724,9 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                 "max_range_m": v.max_range_m, "dr_m": v.pixel_m, "dx_m": v.pixel_m, "tile_pings": tile_pings,
                 "speed_m_s": SPEED_M_S, "altitude_m": v.altitude_m, "swell_m": SWELL_M,
                 "swell_period_s": _r(swell_period_s), "swell_phase_rad": _r(swell_phase),
-                "speckle": {"model": "K: mean * Gamma(nu, 1/nu) * Exp(1)", "nu": _r(nu), "nu_variation": NU_VARIATION},
+                "speckle": {"model": "K: mean * Gamma(nu, 1/nu) * Exp(1)" if not (v.texture_m or v.speckle_px) else
+                            "K: mean * Gamma(nu, 1/nu) (copula, correlated over texture_m) * |c|^2 (smoothed over "
+                            "speckle_px, mean 1)", "nu": _r(nu), "nu_variation": NU_VARIATION},
                 "level": LEVEL, "noise_floor": NOISE_FLOOR,
                 "gain": "(0.55 + 0.45 min(r/15, 1)) (1 - 0.4 (r/60)^2), times (cos t_loc / cos t_flat)^2",
                 "sensor": {k: getattr(SENSOR, k) for k in ("frequency_hz", "bandwidth_hz", "tx_length_m", "rx_length_m",
@@ -758,7 +760,8 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
 def _write_csv(path: Path, objs: list[_Object], legs: list[_Leg], frame: MissionFrame, extra: list[str],
                first: Sequence[str] = ("lat_deg", "lon_deg", "shape")) -> None:
     """CSV of objects: true positions, then ``east_m,north_m,height_m,reflectivity_db,looks,
-    seen_by_legs`` (legs whose 5-60 m swath covers the object, joined by ';') and ``extra``."""
+    seen_by_legs`` (legs whose swath, 5 m to the maximum range, covers the object, joined by ';')
+    and ``extra``."""
     cols = list(first) + [c for c in ["east_m", "north_m", "height_m", "reflectivity_db", "looks", "seen_by_legs"]
                           + extra if c not in first]
     with open(path, "w", newline="") as fh:

@@ -399,6 +399,10 @@ def iter_jsf_items(path: str | os.PathLike[str], stats: XtfStats, *, subsystem: 
             yield XtfPing(nav=pending_key[1], channels=pending, ping_number=pending_key[0], offset=pending_key[2])
 
 
+_FREQUENCY_SAID: set[str] = set()
+"""Files whose ignored ``frequency`` was warned about (once per process)."""
+
+
 class JsfReader(XtfReader):
     """Stream the records of a JSF file: the :class:`~.xtf.XtfReader` tiling and NMEA synthesis
     on the pings and fixes of :func:`iter_jsf_items` (parameters as there, plus ``subsystem``)."""
@@ -416,8 +420,10 @@ class JsfReader(XtfReader):
         return projection(crs) if crs else None
 
     def _check_frequency(self) -> None:
-        # JSF: the side-scan subsystem is chosen by number (``subsystem``), not by frequency
-        if self.frequency != "high":
+        # JSF: the side-scan subsystem is chosen by number (``subsystem``), not by frequency;
+        # said once per file and process (a command opens a file twice: checked, then read)
+        if self.frequency != "high" and str(self.path) not in _FREQUENCY_SAID:
+            _FREQUENCY_SAID.add(str(self.path))
             log.warning("%s: --frequency (recording.frequency) chooses the channels of an XTF file; a JSF file's "
                         "side-scan subsystem is chosen by number: atr-node convert %s OUT.atrlog --subsystem "
                         "20|21|22", self.path, self.path)

@@ -48,8 +48,7 @@ from ..records.tile import SensorInfo, Tile, TileNav
 from .atrlog import LogRecord
 from .nmea_encode import KNOT_M_S, NmeaError, encode_dpt, encode_gga, encode_hdt, encode_zda, format_sentence
 from .xtf_bottom import BottomTrack, shares_axis, track_bottom
-from .xtf_packets import (XtfNav, XtfPing, XtfSerial, check_frequency, iter_xtf_items, note_fields,
-                           read_file_header, read_positions)
+from .xtf_packets import XtfNav, XtfPing, XtfSerial, check_file_frequency, iter_xtf_items, note_fields, read_positions
 from .xtf_stats import XtfStats
 
 __all__ = ["DEFAULT_TILE_PINGS", "XtfReader", "XtfStats", "iter_xtf_records"]
@@ -193,8 +192,7 @@ class XtfReader:
     def _check_frequency(self) -> None:
         """A frequency in kHz the header's side-scan channels do not have fails now (a hook JSF
         overrides: its subsystems are chosen by number)."""
-        with open(self.path, "rb") as fh:
-            check_frequency(read_file_header(fh, str(self.path)), self.frequency, str(self.path))
+        check_file_frequency(self.path, self.frequency)
 
     def _use_header(self, header) -> None:
         """Mission, leg and seq written by :mod:`.xtf_write` are the defaults of the arguments."""

@@ -49,7 +49,7 @@ import math
 import os
 from dataclasses import dataclass
 from datetime import datetime, timezone
-from typing import BinaryIO, Iterator
+from typing import Any, BinaryIO, Iterator
 
 import numpy as np
 from pyxtf.enumerations import XTFHeaderType
@@ -303,13 +303,24 @@ def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfS
                  fix_t=fix_t, source="xtf:sonar")
     sv = float(p.SoundVelocity)
     sv = 750.0 if not (math.isfinite(sv) and sv > 0) else (sv / 2.0 if sv > 1000.0 else sv)  # one-way speed
-    found: dict[str, list[XtfChannel]] = {}
-    for i, (ch, data) in enumerate(zip(p.ping_chan_headers, p.data)):
+    found: dict[str, list[tuple[float, Any, np.ndarray, Any]]] = {}
+    for ch, data in zip(p.ping_chan_headers, p.data):
         info = header.ChanInfo[ch.ChannelNumber] if ch.ChannelNumber < 6 else None
         side = CHANNEL_SIDES.get(info.TypeOfChannel) if info is not None else None
         if side is None:
             stats.skipped[f"channel_type_{info.TypeOfChannel if info is not None else '?'}"] += 1
             continue
+        freq = float(ch.Frequency) * 1e3 if ch.Frequency else float(info.Frequency) * 1e3
+        found.setdefault(side, []).append((freq if math.isfinite(freq) and freq > 0 else 0.0, ch, data, info))
+    channels: dict[str, XtfChannel] = {}
+    for side, cands in found.items():
+        k = pick_channel([c[0] for c in cands], frequency)
+        for j, c in enumerate(cands):
+            if j != k:
+                stats.channels_unused[_khz_text(c[0])] += 1
+        if k is None:
+            continue
+        freq, ch, data, info = cands[k]  # only the channel read is looked into
         n = int(data.size)
         is_slant = info.CorrectionFlags != 2
         slant = float(ch.SlantRange if is_slant or not ch.GroundRange > 0 else ch.GroundRange)
@@ -322,21 +333,10 @@ def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfS
         if side == "port":  # stored far range first: column 0 must be nearest the sonar
             samples = samples[::-1]
         dr = slant / n
-        freq = float(ch.Frequency) * 1e3 if ch.Frequency else float(info.Frequency) * 1e3
-        found.setdefault(side, []).append(
-            XtfChannel(side=side, samples=np.ascontiguousarray(samples), range0_m=float(ch.TimeDelay) * sv + 0.5 * dr,
-                       dr_m=dr, slant=is_slant, frequency_hz=freq if math.isfinite(freq) and freq > 0 else 0.0,
-                       bandwidth_hz=float(ch.BandWidth)))
-    channels: dict[str, XtfChannel] = {}
-    for side, cands in found.items():
-        chosen = pick_channel(cands, frequency)
-        for c in cands:
-            if c is not chosen:
-                stats.channels_unused[_khz_text(c.frequency_hz)] += 1
-        if chosen is None:
-            continue
-        stats.channels_used[_khz_text(chosen.frequency_hz)] += 1
-        channels[side] = chosen
+        stats.channels_used[_khz_text(freq)] += 1
+        channels[side] = XtfChannel(side=side, samples=np.ascontiguousarray(samples),
+                                    range0_m=float(ch.TimeDelay) * sv + 0.5 * dr, dr_m=dr, slant=is_slant,
+                                    frequency_hz=freq, bandwidth_hz=float(ch.BandWidth))
     if not channels:
         stats.pings_dropped["no_side_scan_channel" if not found else f"no_channel_at_{frequency:g}_kHz"] += 1
         return None
@@ -348,24 +348,25 @@ FREQUENCY_TOLERANCE = 0.1
 """A channel is at a frequency asked in kHz when that is within this share of the channel's."""
 
 
-def pick_channel(cands: list[XtfChannel], frequency: str | float = "high") -> XtfChannel | None:
-    """The channel of one side to read, of those of one ping in channel order.
+def pick_channel(freqs_hz: list[float], frequency: str | float = "high") -> int | None:
+    """Which channel of one side to read: an index into the frequencies (Hz, 0 = unknown) of
+    the side's channels of one ping, in channel order.
 
     ``high`` / ``low``: the highest / lowest known frequency (the first channel on a tie);
     a number: the nearest channel if that many kHz is within :data:`FREQUENCY_TOLERANCE` of its
     frequency, else None. Channels whose frequency is unknown (0) are read only
     where none of the side's is known: then the first, whatever was asked (nothing to choose by).
     """
-    known = [c for c in cands if c.frequency_hz > 0]
+    known = [i for i, f in enumerate(freqs_hz) if f > 0]
     if not known:
-        return cands[0] if cands else None
+        return 0 if freqs_hz else None
     if frequency == "high":
-        return max(known, key=lambda c: c.frequency_hz)  # max/min keep the first of equals
+        return max(known, key=lambda i: freqs_hz[i])  # max/min keep the first of equals
     if frequency == "low":
-        return min(known, key=lambda c: c.frequency_hz)
+        return min(known, key=lambda i: freqs_hz[i])
     want = float(frequency) * 1e3
-    best = min(known, key=lambda c: abs(c.frequency_hz - want))
-    return best if abs(best.frequency_hz - want) <= FREQUENCY_TOLERANCE * best.frequency_hz else None
+    best = min(known, key=lambda i: abs(freqs_hz[i] - want))
+    return best if abs(freqs_hz[best] - want) <= FREQUENCY_TOLERANCE * freqs_hz[best] else None
 
 
 def _khz_text(hz: float) -> str:
@@ -374,7 +375,7 @@ def _khz_text(hz: float) -> str:
 
 def side_scan_frequencies_khz(header: XTFFileHeader) -> list[float]:
     """The side-scan channel frequencies the file header lists (kHz, known ones, sorted)."""
-    n = min(int(header.NumberOfSonarChannels) or 6, 6)
+    n = min(int(header.NumberOfSonarChannels), 6)
     return sorted({float(header.ChanInfo[i].Frequency) for i in range(n)
                    if header.ChanInfo[i].TypeOfChannel in CHANNEL_SIDES and header.ChanInfo[i].Frequency > 0})
 
@@ -388,6 +389,12 @@ def check_frequency(header: XTFFileHeader, frequency: str | float, path: str, op
     if have and not any(abs(f - frequency) <= FREQUENCY_TOLERANCE * f for f in have):
         raise LogFormatError(f"no side-scan channel at {frequency:g} kHz ({option}): the file's are at "
                              f"{', '.join(f'{f:g}' for f in have)} kHz; give one of them, high or low", path=path)
+
+
+def check_file_frequency(path: str | os.PathLike[str], frequency: str | float, option: str = "--frequency") -> None:
+    """:func:`check_frequency` on the header of the XTF file at ``path`` (read now)."""
+    with open(path, "rb") as fh:
+        check_frequency(read_file_header(fh, str(path)), frequency, str(path), option)
 
 
 def parse_nav_packet(kind: int, raw: bytes, header: XTFFileHeader, offset: int = 0,

@@ -93,7 +93,7 @@ class XtfStats:
 
     def frequency_line(self) -> str:
         """Which side-scan channels were read where a side had more than one (empty when none
-        had), e.g. ``side-scan: 500 kHz read (2000 channel-pings), 100 kHz not (2000);
+        had), e.g. ``side-scan: 500 kHz (2000) read, 100 kHz (2000) not (channel-pings);
         --frequency high, low or kHz chooses``."""
         if not self.channels_unused:
             return ""

@@ -253,6 +253,21 @@ def test_calibrate_and_batch_fail_at_once_without_crs(pair, tmp_path):
     assert not (tmp_path / "m.json").exists() and not (tmp_path / "c.jsonl").exists()
 
 
+def test_evaluate_log_takes_the_crs(pair, tmp_path):
+    """evaluate --log reads XTF, so it takes --crs (ICD v1.1 section 6): without it a projected
+    file fails in one line naming the option, before --out exists; with it the run scores."""
+    truth = tmp_path / "truth.csv"
+    truth.write_text("lat_deg,lon_deg,shape\n48.0,-68.0,cylinder\n")
+    r = _run("evaluate", "--log", pair[1], "--truth", truth, "--out", tmp_path / "ev", "--online-calibration", "off",
+             timeout=300)
+    assert r.returncode == 1 and "--crs" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert not (tmp_path / "ev").exists()
+    r = _run("evaluate", "--log", pair[1], "--truth", truth, "--out", tmp_path / "ev", "--online-calibration", "off",
+             "--crs", UTM19, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "ev" / "contacts.jsonl").is_file()
+
+
 def test_batch_with_crs_gives_the_contacts_of_the_latlon_file(pair, tmp_path):
     r1 = _run("batch", pair[0], "--scheduler", "serial", "--quiet", "--contacts-out", tmp_path / "a.jsonl")
     r2 = _run("batch", pair[1], "--crs", UTM19, "--scheduler", "serial", "--quiet",

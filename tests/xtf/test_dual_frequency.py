@@ -23,7 +23,7 @@ from atr_node.config import settings_from_dict
 from atr_node.errors import ConfigError, LogFormatError
 from atr_node.io.atrlog import LogRecord, read_atrlog
 from atr_node.io.xtf import XtfReader
-from atr_node.io.xtf_packets import XtfChannel, pick_channel
+from atr_node.io.xtf_packets import pick_channel
 from atr_node.io.xtf_write import write_xtf
 from atr_node.records.tile import Tile
 
@@ -156,20 +156,41 @@ def test_unknown_frequencies_read_the_first_channel_of_each_side(tmp_path):
         assert stats.channels_unused == {"unknown frequency": 2 * ROWS}
 
 
-def _chan(freq_hz: float, tag: int) -> XtfChannel:
-    return XtfChannel(side="port", samples=np.array([tag]), range0_m=0.0, dr_m=0.1, slant=True,
-                      frequency_hz=freq_hz, bandwidth_hz=0.0)
-
-
 def test_pick_channel_rules():
-    a, b, c, z = _chan(100e3, 0), _chan(500e3, 1), _chan(500e3, 2), _chan(0.0, 3)
-    assert pick_channel([a, b, c], "high") is b  # the first of equals
-    assert pick_channel([c, a, b], "low") is a
-    assert pick_channel([z, b], "low") is b  # a known frequency before an unknown one
-    assert pick_channel([z, _chan(0.0, 4)], "high") is z
-    assert pick_channel([a, b], 110.0) is a and pick_channel([a, b], 111.0) is None  # within 10 %
-    assert pick_channel([a], 90.0) is a and pick_channel([a], 89.0) is None
+    assert pick_channel([100e3, 500e3, 500e3], "high") == 1  # the first of equals
+    assert pick_channel([500e3, 100e3, 500e3], "low") == 1
+    assert pick_channel([0.0, 500e3], "low") == 1  # a known frequency before an unknown one
+    assert pick_channel([0.0, 0.0], "high") == 0
+    assert pick_channel([100e3, 500e3], 110.0) == 0 and pick_channel([100e3, 500e3], 111.0) is None  # within 10 %
+    assert pick_channel([100e3], 90.0) == 0 and pick_channel([100e3], 89.0) is None
     assert pick_channel([], "high") is None
+
+
+def test_a_bad_channel_not_read_does_not_cost_the_ping(tmp_path):
+    """Only the channel read is looked into: a 100 kHz channel without samples in some pings
+    leaves the 500 kHz pings whole; read at 100 kHz those pings are dropped, counted."""
+    path, tiles = dual_frequency_xtf(tmp_path)
+    raw = bytearray(path.read_bytes())
+    header, pings = _packets(path)
+    # empty the low-frequency channels of ping 2: NumSamples 0, the samples cut out of the packet
+    at = 1024 + sum(p.NumBytesThisRecord for p, _ in pings[:2])
+    ping, chans = pings[2]
+    body = b""
+    for ch, data in chans:
+        ch = XTFPingChanHeader.from_buffer_copy(bytes(ch))
+        if header.ChanInfo[ch.ChannelNumber].Frequency < 300:
+            ch.NumSamples, data = 0, b""
+        body += bytes(ch) + data
+    p = XTFPingHeader.from_buffer_copy(bytes(ping))
+    p.NumBytesThisRecord = 256 + len(body)
+    raw[at:at + ping.NumBytesThisRecord] = bytes(p) + body
+    path.write_bytes(bytes(raw))
+    got, stats = _read(path)
+    _same(got, tiles["high"])
+    assert not stats.pings_dropped
+    low = XtfReader(path, frequency="low")
+    rows = sum(Tile.from_map(r.msg).rows for r in low if r.link == "sonar")
+    assert low.stats.pings_dropped == {"no_range": 1} and rows == 2 * (ROWS - 1)
 
 
 @pytest.mark.parametrize("value", [0, -5, "medium", float("nan"), float("inf"), True, ""])
@@ -178,10 +199,17 @@ def test_recording_frequency_key_is_checked(value):
         settings_from_dict({"recording": {"frequency": value}})
 
 
-def test_recording_frequency_key_accepts_names_and_kilohertz():
-    assert settings_from_dict({"recording": {"frequency": "low"}}).recording.frequency == "low"
-    assert settings_from_dict({"recording": {"frequency": 455}}).recording.frequency == 455
+def test_recording_frequency_key_accepts_names_and_kilohertz(tmp_path):
+    """Normalised as it is read: a name in lower case, kilohertz as a float, whether TOML gave
+    a number or a string (a string is a name to every reader: "500" must not reach one)."""
+    for value, want in (("low", "low"), ("HIGH", "high"), (455, 455.0), ("455", 455.0), (100.5, 100.5)):
+        got = settings_from_dict({"recording": {"frequency": value}}).recording.frequency
+        assert got == want and type(got) is type(want), value
     assert settings_from_dict({}).recording.frequency == "high"
+    path, _ = dual_frequency_xtf(tmp_path)
+    bad = settings_from_dict({"recording": {"frequency": "300"}}).recording.frequency
+    with pytest.raises(LogFormatError, match="300 kHz"):
+        check_positions([path], "", bad)
 
 
 def _cli(*args):
@@ -205,3 +233,20 @@ def test_convert_and_replay_take_the_option(tmp_path):
     r = _cli("replay", path, "--frequency", "0")
     assert r.returncode == 1 and r.stderr.strip().endswith("--frequency '0': expected high, low or a frequency in "
                                                            "kHz > 0"), r.stderr
+
+
+@pytest.mark.parametrize("command", ["calibrate", "evaluate", "batch"])
+def test_every_command_that_reads_xtf_takes_the_option(tmp_path, command):
+    """The frequency reaches the reading of calibrate --input, evaluate --log and batch: a
+    frequency the file lacks fails in one line before any output (exit 1)."""
+    path, _ = dual_frequency_xtf(tmp_path)
+    truth = tmp_path / "truth.csv"
+    truth.write_text("lat_deg,lon_deg,shape\n48.0,-68.0,cylinder\n")
+    out = tmp_path / "out"
+    args = {"calibrate": ["calibrate", "--input", path, "--out", out / "m.json", "--no-progress"],
+            "evaluate": ["evaluate", "--log", path, "--truth", truth, "--out", out],
+            "batch": ["batch", path, "--contacts-out", out / "c.jsonl"]}[command]
+    r = _cli(*args, "--frequency", "300")
+    assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "no side-scan channel at 300 kHz (--frequency)" in r.stderr
+    assert not out.exists()

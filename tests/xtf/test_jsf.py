@@ -294,8 +294,10 @@ def test_frequency_of_xtf_files_is_not_silently_ignored_on_jsf(tmp_path, caplog)
     (rec,) = [r for r in caplog.records if "--frequency" in r.getMessage()]
     assert "--subsystem" in rec.getMessage()
     caplog.clear()
-    assert main(["convert", str(path), str(tmp_path / "s.atrlog"), "--frequency", "low"]) == 0
-    assert any("--subsystem" in r.getMessage() for r in caplog.records)
+    other = tmp_path / "other.jsf"
+    _write_small(other, data_format="analytic")
+    assert main(["convert", str(other), str(tmp_path / "s.atrlog"), "--frequency", "low"]) == 0
+    assert sum("--subsystem" in r.getMessage() for r in caplog.records) == 1  # checked, then read: said once
     caplog.clear()
     list(open_recording(path))
     assert not [r for r in caplog.records if "--frequency" in r.getMessage()]

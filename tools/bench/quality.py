@@ -258,7 +258,8 @@ def score_recording(path: Path, settings, *, online: str) -> dict:
 
     rr = _real_tool()
     t0 = time.monotonic()
-    records = list(open_recording(path, crs=settings.recording.crs, altitude=settings.recording.altitude))
+    rec = settings.recording
+    records = list(open_recording(path, crs=rec.crs, altitude=rec.altitude, frequency=rec.frequency))
     tiles = [Tile.from_map(r.msg) for r in records if r.link == "sonar"]
     if not any(t.nav is not None for t in tiles):
         raise AtrError(f"{path}: no ping has a position: no contact can be placed on its waterfall")

@@ -32,7 +32,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from atr_node.config import load_settings  # noqa: E402
+from atr_node.config import frequency_choice, load_settings  # noqa: E402
 from atr_node.evaluation.waterfall import ZONES, SidePings, draw_waterfall, locate_contacts  # noqa: E402
 from atr_node.geo import MissionFrame  # noqa: E402
 from atr_node.records.tile import Tile  # noqa: E402
@@ -60,10 +60,10 @@ def _replay(path: Path, contacts: Path, summary: Path, extra: list[str]) -> subp
     return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
 
 
-def _tiles(path: Path, settings, crs: str) -> list[Tile]:
+def _tiles(path: Path, settings, crs: str, frequency: str | float = "high") -> list[Tile]:
     from atr_node.node.service import open_recording
 
-    records = open_recording(path, crs=crs, altitude=settings.recording.altitude)
+    records = open_recording(path, crs=crs, altitude=settings.recording.altitude, frequency=frequency)
     return [Tile.from_map(r.msg) for r in records if r.link == "sonar"]
 
 
@@ -123,6 +123,9 @@ def main(argv: list[str] | None = None) -> int:
         extra = ["--config", args.config, *extra]
     band_m = settings.sensor.first_return_band_m
     crs = extra[extra.index("--crs") + 1] if "--crs" in extra[:-1] else settings.recording.crs
+    # the waterfall is drawn from the channels the replay reads (--frequency after --, or the config's)
+    frequency = (frequency_choice(extra[extra.index("--frequency") + 1]) if "--frequency" in extra[:-1]
+                 else settings.recording.frequency)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     table = []
@@ -140,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
             contacts = [json.loads(x) for x in cpath.read_text().splitlines() if x.strip()]
             summary = json.loads(spath.read_text())
         live = [c for c in contacts if c["state"] != "withdrawn"]
-        tiles = _tiles(path, settings, crs)
+        tiles = _tiles(path, settings, crs, frequency)
         if not any(t.nav is not None for t in tiles):
             print(f"{path}: no ping has a position: nothing to place", file=sys.stderr)
             failed += 1

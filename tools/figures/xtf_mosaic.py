@@ -60,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--detections", help="JSON lines of detections (atr-node replay --detections-out) to mark")
     ap.add_argument("--altitude", choices=("altimeter", "sonar"), default="altimeter",
                     help="altitude for slant-to-ground: the recorded altimeter (default) or the sonar's first return")
+    ap.add_argument("--frequency", default="high", metavar="high|low|KHZ",
+                    help="a dual-frequency file's side-scan channels (default high; docs/xtf.md)")
     ap.add_argument("--quick", action="store_true", help="smaller, coarser figure (fast check)")
     args = ap.parse_args(argv)
 
@@ -67,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    reader = XtfReader(args.xtf, altitude=args.altitude)
+    reader = XtfReader(args.xtf, altitude=args.altitude, frequency=args.frequency)
     tiles = [Tile.from_map(r.msg) for r in reader if r.link == "sonar"]
     if not tiles:
         print(f"{args.xtf}: no side-scan pings\n{reader.stats.summary()}", file=sys.stderr)
@@ -188,4 +190,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from atr_node.errors import AtrError
+
+    try:
+        sys.exit(main())
+    except (AtrError, OSError) as exc:  # a file that is not XTF, a bad --frequency, a missing file: one line
+        print(f"xtf_mosaic: {exc}", file=sys.stderr)
+        sys.exit(1)
