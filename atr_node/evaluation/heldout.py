@@ -28,8 +28,9 @@ The tiles carry the true track plus a per-leg nav offset of about 0.5 m and a sl
 (recorded in ``scene.json``); the CSVs give true positions.
 
 Stress variants (:data:`VARIANTS`, ``--variant``) change, for the same seed, what another
-team's simulator is likely to do otherwise: the pixel size (0.05 and 0.2 m), the seabed
-statistics (texture correlated over 1 m, speckle of an oversampled image), the survey height
+team's simulator is likely to do otherwise: the pixel size (0.05 and 0.2 m, and a real
+side-scan's 0.05 m in range by 0.2 m along track), the seabed statistics (texture correlated
+over 1 m, speckle of an oversampled image; spikier clutter, K shape 0.7-1.5), the survey height
 and range (4 m / 40 m, 15 m / 100 m). The base scenes are unchanged by them, byte for byte.
 
 References
@@ -102,8 +103,10 @@ class Variant:
     of the held-out benchmark; the others are stress tests of the same seeds (``VARIANTS``)."""
 
     name: str = "base"
-    pixel_m: float = DR_M
-    """Ground-range and along-track pixel (the tiles keep about 25.6 m along track)."""
+    dr_m: float = DR_M
+    """Ground-range pixel."""
+    dx_m: float = DX_M
+    """Along-track pixel, the ping spacing (the tiles keep about 25.6 m along track)."""
     altitude_m: float = ALTITUDE_M
     max_range_m: float = MAX_RANGE_M
     texture_m: float = 0.0
@@ -112,25 +115,32 @@ class Variant:
     speckle_px: float = 0.0
     """Speckle from a complex Gaussian field smoothed over this many pixels (an oversampled
     image, |.|^2 normalised to mean 1); 0: independent Exp(1) per pixel."""
+    nu_range: tuple[float, float] = (2.0, 30.0)
+    """The K shape ``nu`` of a scene is drawn log-uniformly in this range."""
 
     @property
     def tile_pings(self) -> int:
-        return max(1, int(round(TILE_PINGS * DX_M / self.pixel_m)))
+        return max(1, int(round(TILE_PINGS * DX_M / self.dx_m)))
 
     def info(self) -> dict[str, Any]:
-        return {k: (_r(v) if isinstance(v, float) else v) for k, v in vars(self).items()}
+        """As ``scene.json`` keeps it (tuples as lists)."""
+        return {k: ([_r(x) for x in v] if isinstance(v, tuple) else _r(v) if isinstance(v, float) else v)
+                for k, v in vars(self).items()}
 
 
 VARIANTS = {v.name: v for v in (
     Variant(),
-    Variant("fine", pixel_m=0.05),
-    Variant("coarse", pixel_m=0.2),
+    Variant("fine", dr_m=0.05, dx_m=0.05),
+    Variant("coarse", dr_m=0.2, dx_m=0.2),
+    Variant("aniso", dr_m=0.05, dx_m=0.2),
+    Variant("spiky", nu_range=(0.7, 1.5)),
     Variant("clumpy", texture_m=1.0, speckle_px=0.8),
     Variant("high", altitude_m=15.0, max_range_m=100.0),
     Variant("low", altitude_m=4.0, max_range_m=40.0),
 )}
-"""Stress variants of the held-out scenes (``--variant``): finer and coarser pixels, clumpy
-seabed statistics (correlated texture, oversampled speckle), a higher and a lower survey."""
+"""Stress variants of the held-out scenes (``--variant``): finer and coarser pixels, a real
+side-scan's pixels (fine in range, coarse along track), clumpy seabed statistics (correlated
+texture, oversampled speckle), spiky clutter (K shape 0.7-1.5), a higher and a lower survey."""
 
 
 @dataclass(frozen=True)
@@ -220,17 +230,18 @@ def k_intensity(mean: np.ndarray, nu: np.ndarray | float, rng: np.random.Generat
 
 
 def k_intensity_correlated(mean: np.ndarray, nu: np.ndarray | float, rng: np.random.Generator, *,
-                           texture_px: float, speckle_px: float) -> np.ndarray:
+                           texture_px: float | tuple[float, float], speckle_px: float) -> np.ndarray:
     """K-distributed intensity with spatial correlation: the texture ``G ~ Gamma(nu, 1/nu)``
     through a Gaussian copula of a field smoothed over ``texture_px`` pixels (its marginal is
     exactly the base scenes'), the speckle ``|c|^2`` of a complex Gaussian field smoothed over
     ``speckle_px`` pixels and normalised to mean 1 (an exponential marginal, correlated as in an
-    oversampled image). 0 for either: independent per pixel."""
+    oversampled image). ``texture_px`` may be (rows, cols) for pixels that are not square. 0 for
+    either: independent per pixel."""
     from scipy import special
 
     mean = np.asarray(mean, dtype=np.float64)
     nu_a = np.broadcast_to(np.asarray(nu, dtype=np.float64), mean.shape)
-    if texture_px > 0:
+    if np.any(np.asarray(texture_px) > 0):
         g = ndimage.gaussian_filter(rng.standard_normal(mean.shape), texture_px)
         g /= max(float(g.std()), 1e-12)
         texture = special.gammaincinv(nu_a, np.clip(special.ndtr(g), 1e-12, 1.0 - 1e-12)) / nu_a
@@ -401,7 +412,7 @@ class _Leg:
 
 
 def _make_legs(rng: np.random.Generator, legs: int, leg_length_m: float, v: Variant = Variant()) -> list[_Leg]:
-    dx = v.pixel_m
+    dx = v.dx_m
     pings = int(round(leg_length_m / dx)) + 1
     dt = dx / SPEED_M_S
     out = []
@@ -544,9 +555,9 @@ def _render_side(leg: _Leg, side: str, rows: np.ndarray, objects: list[_Object],
                  altitude_m: np.ndarray, nu: float, nu_field: Callable, rng: np.random.Generator,
                  v: Variant = Variant()) -> np.ndarray:
     """Intensity (rows, cols) of one side of the pings ``rows`` of ``leg``, float32, NaN in the nadir gap."""
-    px_m = v.pixel_m
-    r = px_m * np.arange(int(round(v.max_range_m / px_m)) + 1)
-    along = rows * px_m
+    dr, dx = v.dr_m, v.dx_m
+    r = dr * np.arange(int(round(v.max_range_m / dr)) + 1)
+    along = rows * dx
     su = leg.side_unit(side)
     pe = leg.start_e_m + along * leg.along[0]
     pn = leg.start_n_m + along * leg.along[1]
@@ -556,10 +567,10 @@ def _render_side(leg: _Leg, side: str, rows: np.ndarray, objects: list[_Object],
     refl = seabed.reflectivity(e, n)
     for o in objects:  # local height patches on the ground-range samples
         a_o, c_o = leg.leg_coords(o.east_m, o.north_m, side)
-        i0 = max(int(math.floor((a_o - o.extent_m - along[0]) / px_m)), 0)
-        i1 = min(int(math.ceil((a_o + o.extent_m - along[0]) / px_m)) + 1, rows.size)
-        j0 = max(int(math.floor((c_o - o.extent_m) / px_m)), 0)
-        j1 = min(int(math.ceil((c_o + o.extent_m) / px_m)) + 1, r.size)
+        i0 = max(int(math.floor((a_o - o.extent_m - along[0]) / dx)), 0)
+        i1 = min(int(math.ceil((a_o + o.extent_m - along[0]) / dx)) + 1, rows.size)
+        j0 = max(int(math.floor((c_o - o.extent_m) / dr)), 0)
+        j1 = min(int(math.ceil((c_o + o.extent_m) / dr)) + 1, r.size)
         if i0 >= i1 or j0 >= j1:
             continue
         sl = (slice(i0, i1), slice(j0, j1))
@@ -567,19 +578,20 @@ def _render_side(leg: _Leg, side: str, rows: np.ndarray, objects: list[_Object],
         height[sl] += z
         refl[sl] = np.where(z > 0.005, 10.0 ** (o.reflectivity_db / 10.0), refl[sl])
     h = altitude_m[:, None]
-    r_safe = np.maximum(r, 0.5 * px_m)[None, :]
+    r_safe = np.maximum(r, 0.5 * dr)[None, :]
     # Lit iff the depression slope to the point is no steeper than to any nearer sample.
     slope = (h - height) / r_safe
     lit = slope <= np.minimum.accumulate(slope, axis=1)
     # Lambert's law on the local incidence from the slope along range, over a flat bed's.
-    g = np.gradient(height, px_m, axis=1)
+    g = np.gradient(height, dr, axis=1)
     dz = h - height
     cos_loc = np.clip((dz + r_safe * g) / (np.hypot(r_safe, dz) * np.sqrt(1.0 + g * g)), 0.0, None)
     cos_flat = h / np.hypot(r_safe, h)
     mean = LEVEL * refl * (cos_loc / cos_flat) ** 2 * _gain(r, v.max_range_m)[None, :] * lit
     nu_px = nu * np.exp(NU_VARIATION * nu_field(e, n))
     if v.texture_m > 0 or v.speckle_px > 0:
-        k = k_intensity_correlated(mean, nu_px, rng, texture_px=v.texture_m / px_m, speckle_px=v.speckle_px)
+        k = k_intensity_correlated(mean, nu_px, rng, texture_px=(v.texture_m / dx, v.texture_m / dr),
+                                   speckle_px=v.speckle_px)
     else:
         k = k_intensity(mean, nu_px, rng)
     px = k + NOISE_FLOOR * LEVEL * rng.exponential(1.0, mean.shape)
@@ -593,6 +605,11 @@ def _render_side(leg: _Leg, side: str, rows: np.ndarray, objects: list[_Object],
 
 def _rng(seed: int, seabed: str) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), SEABEDS.index(seabed), 17]))
+
+
+def _g(x: Any) -> str:
+    """A number, or a pair of numbers as ``a-b``, for help texts."""
+    return "-".join(f"{v:g}" for v in x) if isinstance(x, tuple) else f"{x:g}"
 
 
 def _r(x: float, nd: int = 6) -> float:
@@ -654,7 +671,7 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
     e_max = LEG_SPACING_M * (legs - 1)
     box = (-v.max_range_m - 5.0, e_max + v.max_range_m + 5.0, -5.0, leg_length_m + 5.0)
     bed = _Seabed(seabed, rng, tex_dir, box)
-    nu = float(math.exp(rng.uniform(math.log(2.0), math.log(30.0))))
+    nu = float(math.exp(rng.uniform(math.log(v.nu_range[0]), math.log(v.nu_range[1]))))
     nu_field = _slow_field(rng, 4, (30.0, 90.0))
     swell_period_s, swell_phase = float(rng.uniform(40.0, 90.0)), float(rng.uniform(0.0, 2 * np.pi))
     objects = _populate(rng, lines, float(leg_length_m), v.max_range_m)
@@ -677,7 +694,7 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
             tmp = {p: stack.enter_context(atomic_path(p)) for p in (scene_json, atrlog, truth, clutter, one_leg_csv)}
             name = f"heldout-{seabed}-{seed}" + ("" if v.name == "base" else f"-{v.name}")
             frame = MissionFrame("ltp", ORIGIN_LAT_DEG, ORIGIN_LON_DEG)
-            dt = v.pixel_m / SPEED_M_S
+            dt = v.dx_m / SPEED_M_S
             tile_pings = v.tile_pings
             seq = {"port": 0, "stbd": 0}
             total = sum(-(-lg.pings // tile_pings) for lg in lines)
@@ -690,7 +707,7 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                         rows = np.arange(row0, min(row0 + tile_pings, lg.pings), dtype=np.float64)
                         t = lg.t0_s + rows * dt
                         alt = v.altitude_m + SWELL_M * np.sin(2 * np.pi * (t - EPOCH_S) / swell_period_s + swell_phase)
-                        along = rows * v.pixel_m
+                        along = rows * v.dx_m
                         ee, en = lg.nav_error(along)
                         lat, lon = frame.to_latlon(lg.start_e_m + along * lg.along[0] + ee,
                                                    lg.start_n_m + along * lg.along[1] + en)
@@ -701,7 +718,7 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                             px = _render_side(lg, side, rows, shown, bed, alt, nu, nu_field, rng, v)
                             px[lost] = np.nan
                             tile = Tile(mission=name, leg=lg.index, side=side, seq=seq[side], pixels=px, kind="intensity",
-                                        range0_m=0.0, dr_m=v.pixel_m, dx_m=v.pixel_m, slant=False, ping_time=t, nav=nav,
+                                        range0_m=0.0, dr_m=v.dr_m, dx_m=v.dx_m, slant=False, ping_time=t, nav=nav,
                                         sensor=SENSOR)
                             seq[side] += 1
                             writer.write(float(t[-1]) + TILE_LATENCY_S + 0.01 * j, "sonar", tile.to_map())
@@ -721,7 +738,7 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                 "use": "evaluation only: never calibrate on it or choose a setting with it",
                 "mission": name, "seabed": bed.info, "seed": int(seed), "legs": int(legs), "leg_length_m": _r(leg_length_m),
                 "frame": frame.to_dict(), "leg_spacing_m": LEG_SPACING_M, "nadir_gap_m": NADIR_GAP_M,
-                "max_range_m": v.max_range_m, "dr_m": v.pixel_m, "dx_m": v.pixel_m, "tile_pings": tile_pings,
+                "max_range_m": v.max_range_m, "dr_m": v.dr_m, "dx_m": v.dx_m, "tile_pings": tile_pings,
                 "speed_m_s": SPEED_M_S, "altitude_m": v.altitude_m, "swell_m": SWELL_M,
                 "swell_period_s": _r(swell_period_s), "swell_phase_rad": _r(swell_phase),
                 "speckle": {"model": "K: mean * Gamma(nu, 1/nu) * Exp(1)" if not (v.texture_m or v.speckle_px) else
@@ -805,7 +822,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                                      f"or {default_textures_dir()})")
     ap.add_argument("--variant", default="base", choices=list(VARIANTS),
                     help="base (default: the benchmark's scenes) or a stress variant of the same seed: "
-                         + "; ".join(f"{v.name}: " + ", ".join(f"{k} {x:g}" for k, x in vars(v).items()
+                         + "; ".join(f"{v.name}: " + ", ".join(f"{k} {_g(x)}" for k, x in vars(v).items()
                                                                 if k != "name" and x != getattr(Variant(), k))
                                      for v in VARIANTS.values() if v.name != "base"))
     ap.add_argument("--quiet", action="store_true", help="no progress line")

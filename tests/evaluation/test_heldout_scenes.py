@@ -289,6 +289,13 @@ def test_variants_change_the_survey_and_leave_the_base_scene_alone(sand, tmp_pat
     for r in _rows(tmp_path / "high" / "truth.csv"):
         assert r["seen_by_legs"]  # every target inside some leg's 5-100 m swath
     assert high.targets == 16
+    aniso = generate_scene(tmp_path / "aniso", seabed="sand", seed=7, variant="aniso", **SMALL)
+    tiles = _tiles(tmp_path / "aniso")
+    assert {(t.dr_m, t.dx_m) for t in tiles} == {(0.05, 0.2)} and max(t.rows for t in tiles) == 128
+    assert tiles[0].cols == 1201 and aniso.targets == 16
+    spiky = generate_scene(tmp_path / "spiky", seabed="sand", seed=7, variant="spiky", **SMALL)
+    assert 0.7 <= spiky.nu <= 1.5
+    assert json.loads(spiky.scene_json.read_text())["variant"]["nu_range"] == [0.7, 1.5]
     with pytest.raises(ValueError, match="variant must be one of"):
         generate_scene(tmp_path / "x", seabed="sand", seed=7, variant="blurry", **SMALL)
 
