@@ -31,7 +31,8 @@ Stress variants (:data:`VARIANTS`, ``--variant``) change, for the same seed, wha
 team's simulator is likely to do otherwise: the pixel size (0.05 and 0.2 m, and a real
 side-scan's 0.05 m in range by 0.2 m along track), the seabed statistics (texture correlated
 over 1 m, speckle of an oversampled image; spikier clutter, K shape 0.7-1.5), the survey height
-and range (4 m / 40 m, 15 m / 100 m). The base scenes are unchanged by them, byte for byte.
+and range (4 m / 40 m, 15 m / 100 m), a poorer INS (nav errors 4 x, per-leg offsets about 2 m).
+The base scenes are unchanged by them, byte for byte.
 
 References
 ----------
@@ -117,6 +118,9 @@ class Variant:
     image, |.|^2 normalised to mean 1); 0: independent Exp(1) per pixel."""
     nu_range: tuple[float, float] = (2.0, 30.0)
     """The K shape ``nu`` of a scene is drawn log-uniformly in this range."""
+    nav_scale: float = 1.0
+    """Times the base scenes' nav errors (per-leg offset 0.4-0.6 m, drift 0.1-0.3 m per 100 m,
+    wander 0.05-0.15 m): 4 is a poorer INS, offsets of 1.6-2.4 m."""
 
     @property
     def tile_pings(self) -> int:
@@ -134,13 +138,15 @@ VARIANTS = {v.name: v for v in (
     Variant("coarse", dr_m=0.2, dx_m=0.2),
     Variant("aniso", dr_m=0.05, dx_m=0.2),
     Variant("spiky", nu_range=(0.7, 1.5)),
+    Variant("nav2", nav_scale=4.0),
     Variant("clumpy", texture_m=1.0, speckle_px=0.8),
     Variant("high", altitude_m=15.0, max_range_m=100.0),
     Variant("low", altitude_m=4.0, max_range_m=40.0),
 )}
 """Stress variants of the held-out scenes (``--variant``): finer and coarser pixels, a real
 side-scan's pixels (fine in range, coarse along track), clumpy seabed statistics (correlated
-texture, oversampled speckle), spiky clutter (K shape 0.7-1.5), a higher and a lower survey."""
+texture, oversampled speckle), spiky clutter (K shape 0.7-1.5), a higher and a lower survey, a
+poorer INS (per-leg nav offsets of about 2 m)."""
 
 
 @dataclass(frozen=True)
@@ -418,9 +424,10 @@ def _make_legs(rng: np.random.Generator, legs: int, leg_length_m: float, v: Vari
     out = []
     for k in range(legs):
         north = k % 2 == 0
-        mag, ang = rng.uniform(0.4, 0.6), rng.uniform(0.0, 2 * np.pi)
-        dmag, dang = rng.uniform(0.1, 0.3), rng.uniform(0.0, 2 * np.pi)
-        wob = (float(rng.uniform(0.05, 0.15)), float(rng.uniform(60.0, 150.0)), float(rng.uniform(0.0, 2 * np.pi)))
+        f = v.nav_scale  # the same draws, scaled: a poorer INS
+        mag, ang = f * rng.uniform(0.4, 0.6), rng.uniform(0.0, 2 * np.pi)
+        dmag, dang = f * rng.uniform(0.1, 0.3), rng.uniform(0.0, 2 * np.pi)
+        wob = (float(f * rng.uniform(0.05, 0.15)), float(rng.uniform(60.0, 150.0)), float(rng.uniform(0.0, 2 * np.pi)))
         out.append(_Leg(index=k, heading_deg=0.0 if north else 180.0, start_e_m=k * LEG_SPACING_M,
                         start_n_m=0.0 if north else (pings - 1) * dx, pings=pings,
                         t0_s=EPOCH_S + k * ((pings - 1) * dt + TURN_S),

@@ -296,6 +296,12 @@ def test_variants_change_the_survey_and_leave_the_base_scene_alone(sand, tmp_pat
     spiky = generate_scene(tmp_path / "spiky", seabed="sand", seed=7, variant="spiky", **SMALL)
     assert 0.7 <= spiky.nu <= 1.5
     assert json.loads(spiky.scene_json.read_text())["variant"]["nu_range"] == [0.7, 1.5]
+    nav2 = generate_scene(tmp_path / "nav2", seabed="sand", seed=7, variant="nav2", **SMALL)
+    base_legs = json.loads((sand / "scene.json").read_text())["per_leg"]
+    for a, b in zip(base_legs, json.loads(nav2.scene_json.read_text())["per_leg"]):  # the same draws, 4 x
+        for k in ("nav_offset_east_m", "nav_offset_north_m", "nav_drift_east_m_per_100m", "nav_wobble_m"):
+            assert b[k] == pytest.approx(4 * a[k], abs=4e-6), k
+        assert b["nav_wobble_wavelength_m"] == a["nav_wobble_wavelength_m"]
     with pytest.raises(ValueError, match="variant must be one of"):
         generate_scene(tmp_path / "x", seabed="sand", seed=7, variant="blurry", **SMALL)
 
