@@ -121,7 +121,7 @@ def test_hil_replay_through_pty_can_zmq_into_the_node(mission, tmp_path):
         assert sub.wait(timeout=WAIT_S) == 0
     finally:
         service.stop()
-        node.join(timeout=30)
+        node.join(timeout=WAIT_S)
         mux.shutdown()
         player.close()
         service.close()
@@ -155,7 +155,7 @@ def test_sigkill_mid_replay_then_restart_gives_the_same_contacts(mission, tmp_pa
     settings, cfg, files = mission
     ref_out = tmp_path / "ref.jsonl"
     r = subprocess.run(_replay_cmd(cfg, files.atrlog, ref_out, tmp_path / "ref_state"), capture_output=True,
-                       text=True, timeout=300)
+                       text=True, timeout=5 * WAIT_S)  # a whole replay: a hang guard
     assert r.returncode == 0, r.stderr
     state = tmp_path / "state"
     out = tmp_path / "out.jsonl"
@@ -169,12 +169,13 @@ def test_sigkill_mid_replay_then_restart_gives_the_same_contacts(mission, tmp_pa
         wait_until(lambda: proc.poll() is not None or current() not in (None, before), poll_s=0.02)
         if proc.poll() is None:
             proc.send_signal(signal.SIGKILL)
-            proc.wait(timeout=30)
+            proc.wait(timeout=WAIT_S)
             kills += 1
         else:
             break
     assert kills >= 1, "the replay ended before it could be killed"
-    r = subprocess.run(_replay_cmd(cfg, files.atrlog, out, state), capture_output=True, text=True, timeout=300)
+    r = subprocess.run(_replay_cmd(cfg, files.atrlog, out, state), capture_output=True, text=True,
+                       timeout=5 * WAIT_S)  # a whole replay: a hang guard
     assert r.returncode == 0, r.stderr
     ref = [json.loads(x) for x in ref_out.read_text().splitlines()]
     got = [json.loads(x) for x in out.read_text().splitlines()]

@@ -247,7 +247,7 @@ def test_replay_command_serves_the_snapshot_on_the_port_after_publish(mission, t
     stderr = StreamLines(proc.stderr)
     try:
         assert fol.wait_heartbeat(WAIT_S)
-        follow_until(fol, lambda: proc.poll() is not None, timeout_s=120)  # the replay runs to its end
+        follow_until(fol, lambda: proc.poll() is not None, timeout_s=WAIT_S)  # the replay runs to its end
         returncode = proc.wait(timeout=WAIT_S)
         final = [json.loads(x) for x in out.read_text().splitlines()] if returncode == 0 else []
         live = {c["id"]: c for c in final if c["state"] != "withdrawn"}

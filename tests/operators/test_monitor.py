@@ -21,7 +21,7 @@ from atr_node.operators.beliefmap import draw_belief_map, grid_raster, load_stat
 from atr_node.operators.monitor import CLEAR_EOS, HOME, Monitor, render_screen
 from atr_node.operators.stream import NodeFollower
 
-from .conftest import StreamLines, follow_until, stop_client, wait_until
+from .conftest import WAIT_S, StreamLines, follow_until, stop_client, wait_until
 
 
 def contact(id, *, state="update", bel=0.9, t=1.7e9):
@@ -217,7 +217,7 @@ def test_bench_tool_quick_smoke():
 
     tool = Path(__file__).resolve().parents[2] / "tools" / "bench" / "operators.py"
     r = subprocess.run([sys.executable, str(tool), "--quick", "--sizes", "20"], capture_output=True, text=True,
-                       timeout=120)
+                       timeout=WAIT_S)
     assert r.returncode == 0, r.stderr
     row = r.stdout.splitlines()[1].split()
     assert row[0] == "20" and all(float(x) > 0 for x in row[1:])

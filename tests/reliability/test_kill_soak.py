@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+from ..waiting import WAIT_S, wait_until
 from .conftest import load_tool
 
 
@@ -84,29 +85,34 @@ def test_the_detection_worker_exits_when_the_node_is_killed(small_mission, tmp_p
     import os
     import signal
     import subprocess
-    import time
 
     _, cfg, files = small_mission
     kr = load_tool("kill_restart")
     proc = subprocess.Popen(kr.replay_cmd(files.atrlog, cfg, tmp_path / "o.jsonl", tmp_path / "st", workers=1,
                                           online="off") + ["--speed", "1"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    worker = None
+    found: list[int] = []
+
+    def worker_started() -> bool:
+        kids = load_tool("soak").children(proc.pid)
+        found.extend(k for k in kids if "spawn_main" in open(f"/proc/{k}/cmdline").read())
+        return bool(found) or proc.poll() is not None
+
+    def worker_alive() -> bool:
+        try:
+            return "Z" not in open(f"/proc/{worker}/stat").read().split(")")[-1].split()[0]
+        except FileNotFoundError:
+            return False
+
     try:
-        deadline = time.monotonic() + 60
-        while worker is None and time.monotonic() < deadline and proc.poll() is None:
-            kids = load_tool("soak").children(proc.pid)
-            worker = next((k for k in kids if "spawn_main" in open(f"/proc/{k}/cmdline").read()), None) if kids else None
-            time.sleep(0.1)
-        assert worker is not None, "the replay started no worker process"
+        wait_until(worker_started, poll_s=0.1)
+        assert found, "the replay started no worker process"
+        worker = found[0]
     finally:
         proc.send_signal(signal.SIGKILL)
-        proc.wait(timeout=30)
-    deadline = time.monotonic() + 20  # a bound for the test, not a timing requirement
-    while time.monotonic() < deadline and os.path.exists(f"/proc/{worker}") and \
-            "Z" not in open(f"/proc/{worker}/stat").read().split(")")[-1].split()[0]:
-        time.sleep(0.1)
-    alive = os.path.exists(f"/proc/{worker}") and "Z" not in open(f"/proc/{worker}/stat").read().split(")")[-1].split()[0]
+        proc.wait(timeout=WAIT_S)
+    wait_until(lambda: not worker_alive(), poll_s=0.1)  # its end, however long the machine takes
+    alive = worker_alive()
     if alive:
         os.kill(worker, signal.SIGKILL)  # do not leave it behind
     assert not alive, "the worker outlived the node"
@@ -148,15 +154,18 @@ def test_live_node_sigkilled_resumes_from_its_own_recording_and_loses_nothing(sm
             if (data / "recordings").is_dir() else 0
 
     def feed(batch: list[dict], want: int, proc) -> None:
-        deadline, i = time.monotonic() + 90, 0
-        while recorded() < want and time.monotonic() < deadline and proc.poll() is None:
-            if i < len(batch):
+        sent = [0]
+
+        def send_next() -> None:
+            if sent[0] < len(batch):
                 try:
-                    push.send(msgpack.packb(batch[i], use_bin_type=True), zmq.NOBLOCK)
-                    i += 1
+                    push.send(msgpack.packb(batch[sent[0]], use_bin_type=True), zmq.NOBLOCK)
+                    sent[0] += 1
                 except zmq.Again:
                     pass
             time.sleep(0.02)
+
+        wait_until(lambda: recorded() >= want or proc.poll() is not None, step=send_next)
         assert recorded() >= want, f"only {recorded()} of {want} tiles recorded; " + (
             proc.stderr.read()[-3000:] if proc.poll() is not None else "")
 
@@ -166,13 +175,13 @@ def test_live_node_sigkilled_resumes_from_its_own_recording_and_loses_nothing(sm
         procs.append(p1)
         feed(tiles[:20], 20, p1)
         p1.send_signal(signal.SIGKILL)
-        p1.wait(timeout=30)
+        p1.wait(timeout=WAIT_S)
         assert node_state.read_current(data / "state") is not None
         p2 = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         procs.append(p2)
         feed(tiles[20:], 36, p2)
         p2.send_signal(signal.SIGTERM)
-        _, err = p2.communicate(timeout=60)
+        _, err = p2.communicate(timeout=WAIT_S)
         assert p2.returncode == 0, err[-2000:]
         assert "resumed from snapshot" in err
     finally:

@@ -7,7 +7,6 @@ import os
 import re
 import shutil
 import subprocess
-import time
 from pathlib import Path
 
 import msgpack
@@ -22,6 +21,8 @@ from atr_node.node.service import NodeService
 from atr_node.security import CurveConfig, generate_keypair, load_authorized_keys, load_keypair, load_public_key
 from hw.errors import LinkSpecError
 from hw.zmq_sonar import ZmqTileLink
+
+from ..waiting import WAIT_S, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -99,14 +100,17 @@ def test_node_pub_socket_admits_only_authorized_curve_subscribers(keys):
     intruder = Subscriber(ep, curve=_client(k, "intruder"))
     plain = Subscriber(ep)
     got = {"good": [], "intruder": [], "plain": []}
+
+    def beat() -> None:
+        service._send_heartbeat()
+        for name, sub in (("good", good), ("intruder", intruder), ("plain", plain)):
+            m = sub.recv(timeout_s=0.05)
+            if m is not None:
+                got[name].append(m)
+
     try:
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and len(got["good"]) < 3:
-            service._send_heartbeat()
-            for name, sub in (("good", good), ("intruder", intruder), ("plain", plain)):
-                m = sub.recv(timeout_s=0.05)
-                if m is not None:
-                    got[name].append(m)
+        # until the authorized one has 3 (its CURVE handshake waits for the CPU on a loaded machine)
+        wait_until(lambda: len(got["good"]) >= 3, step=beat)
         for _ in range(10):  # the others had every chance too
             service._send_heartbeat()
             for name, sub in (("intruder", intruder), ("plain", plain)):
@@ -130,19 +134,23 @@ def _push(ctx, endpoint, *, curve: CurveConfig | None, server: bool):
     return s
 
 
-def _recv_any(link, sender, payload, seconds=20.0):
-    # returns at the first record: the default is a guard for a loaded machine (a CURVE
-    # handshake waits for the CPU), not a timing requirement; refusals pass a short wait
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
+def _recv_any(link, sender, payload, seconds=WAIT_S):
+    """The first record ``link`` gets while ``sender`` keeps offering ``payload`` (None if none
+    came). The default is a hang guard only: an admitted sender's record ends the wait. A refusal
+    passes a short wait, which can only miss a leak, never fail an admitted sender."""
+    got = []
+
+    def offer() -> None:
         try:
             sender.send(payload, zmq.NOBLOCK)
         except zmq.Again:
             pass
         rec = link.recv(timeout=0.1)
         if rec is not None:
-            return rec
-    return None
+            got.append(rec)
+
+    wait_until(lambda: bool(got), timeout_s=seconds, step=offer)
+    return got[0] if got else None
 
 
 def test_bound_tile_socket_admits_only_authorized_senders(keys):
@@ -241,7 +249,7 @@ def test_systemd_unit_is_unprivileged_read_only_and_device_restricted():
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze not installed")
 def test_systemd_analyze_security_rates_the_unit_ok():
     r = subprocess.run(["systemd-analyze", "security", "--offline=yes", str(REPO / "systemd" / "atr-node.service")],
-                       capture_output=True, text=True, timeout=60)
+                       capture_output=True, text=True, timeout=WAIT_S)
     m = re.search(r"Overall exposure level for atr-node.service: ([0-9.]+)", r.stdout)
     if m is None:
         pytest.skip(f"systemd-analyze security --offline unsupported here: {r.stderr.strip()[:200]}")
