@@ -129,12 +129,11 @@ def check_positions(paths: Sequence[str | Path], crs: str, frequency: str | floa
     """Fail at once, before any task, on an XTF recording whose positions need a CRS that was
     not given, or without a side-scan channel at the frequency asked (rather than in every task
     and its retries). Files this host cannot see (a remote cluster's paths) are left to their task."""
-    from ..io.xtf_packets import check_file_frequency, read_positions
+    from ..io.xtf_packets import read_positions
 
     for p in paths:
         if str(p).lower().endswith(".xtf") and Path(p).is_file():
-            read_positions(p, crs)
-            check_file_frequency(p, frequency)
+            read_positions(p, crs, frequency=frequency)
 
 
 def run_recordings(paths: Sequence[str | Path], settings: Settings, model: PerformanceModel, engine: Engine, *,

@@ -185,11 +185,11 @@ class CalibrationImage:
     @classmethod
     def from_tile(cls, tile: Any, *, altitude_m: float) -> "CalibrationImage":
         """From a :class:`~atr_node.records.tile.Tile` (slant tiles converted to ground range at
-        the tile's nav altitude, or ``altitude_m`` when it has no nav; amplitude squared into
-        intensity, as the node scores it: :meth:`~atr_node.records.tile.Tile.as_intensity`)."""
-        tile = tile.as_intensity()
+        the tile's nav altitude, or ``altitude_m`` when it has no nav; then amplitude squared into
+        intensity, in the node's order: ground range in the nav merger, squared in
+        ``Pipeline._on_tile``, :meth:`~atr_node.records.tile.Tile.as_intensity`)."""
         alt = float(np.nanmean(tile.nav.altitude_m)) if tile.nav is not None else float(altitude_m)
-        g = tile.ground_range(None if tile.nav is not None else alt) if tile.slant else tile
+        g = (tile.ground_range(None if tile.nav is not None else alt) if tile.slant else tile).as_intensity()
         return cls(np.ascontiguousarray(g.pixels, dtype=np.float32), float(g.range0_m), float(g.dr_m),
                    float(g.dx_m), alt, name=tile.ident)
 

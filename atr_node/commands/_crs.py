@@ -5,6 +5,7 @@ wins over the ``recording.crs`` and ``recording.frequency`` keys."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from typing import Any
 
 from ..io.crs import EXAMPLE_CRS, projection
@@ -34,15 +35,22 @@ def add_frequency_argument(parser: argparse.ArgumentParser) -> None:
                              "resolution), low, or a frequency in kHz (default: recording.frequency, high)")
 
 
-def resolve_frequency(cli_value: str | None, settings: Any = None) -> Any:
+def resolve_frequency(cli_value: str | None, settings: Any) -> Any:
     """``settings`` with ``recording.frequency`` from ``--frequency`` when given (checked now: a
     bad one fails in one line naming the option); the settings as they are otherwise."""
-    import dataclasses
-
-    from ..config import Settings, frequency_choice
-
     if cli_value is None:
-        return settings if settings is not None else Settings()
-    value = frequency_choice(cli_value, "--frequency")
-    settings = settings if settings is not None else Settings()
-    return dataclasses.replace(settings, recording=dataclasses.replace(settings.recording, frequency=value))
+        return settings
+    from ..config import frequency_choice
+
+    return settings.replace(recording=dataclasses.replace(settings.recording,
+                                                          frequency=frequency_choice(cli_value, "--frequency")))
+
+
+def with_recording_options(args: argparse.Namespace, settings: Any) -> Any:
+    """``settings`` with the command line's ``--frequency`` and ``--crs`` in ``recording`` (both
+    checked now), for commands whose work reads them from the settings (batch tasks, evaluate)."""
+    settings = resolve_frequency(getattr(args, "frequency", None), settings)
+    crs = resolve_crs(getattr(args, "crs", None), settings)
+    if crs != settings.recording.crs:
+        settings = settings.replace(recording=dataclasses.replace(settings.recording, crs=crs))
+    return settings

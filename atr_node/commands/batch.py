@@ -32,7 +32,7 @@ import time
 from ..config import load_settings
 from ..errors import AtrError
 from ..io.atomic import atomic_open
-from ._crs import add_crs_argument, add_frequency_argument, resolve_crs, resolve_frequency
+from ._crs import add_crs_argument, add_frequency_argument, with_recording_options
 from ._progress import add_progress_argument
 
 EXIT_DETAIL = "batch: 1 also when a recording failed after its retries (the others are still merged)"
@@ -102,12 +102,7 @@ def run(args: argparse.Namespace) -> int:
 
     # Dask logs every worker start and stop at INFO: keep them for -v and -vv
     dask_log_level(logging.INFO if getattr(args, "verbose", 0) else logging.ERROR)
-    settings = resolve_frequency(getattr(args, "frequency", None), load_settings(args.config))
-    crs = resolve_crs(getattr(args, "crs", None), settings)
-    if crs != settings.recording.crs:  # --crs wins; the tasks read it from their settings
-        import dataclasses
-
-        settings = dataclasses.replace(settings, recording=dataclasses.replace(settings.recording, crs=crs))
+    settings = with_recording_options(args, load_settings(args.config))  # the tasks read them from the settings
     if args.calibrate:
         return _calibrate(args, settings)
     if not args.recordings:

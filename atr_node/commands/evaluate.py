@@ -20,7 +20,6 @@ with --log the mosaic, belief map and P(y) figures) into --out.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import shutil
 import sys
@@ -28,7 +27,7 @@ import time
 from pathlib import Path
 
 from ..config import load_settings
-from ._crs import add_crs_argument, add_frequency_argument, resolve_crs, resolve_frequency
+from ._crs import add_crs_argument, add_frequency_argument, with_recording_options
 from ..errors import AtrError
 from ._endpoints import check_endpoint
 from ..operators.book import read_contacts
@@ -54,10 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..evaluation.scoring import read_truth
 
-    settings = resolve_frequency(getattr(args, "frequency", None), load_settings(args.config))
-    crs = resolve_crs(getattr(args, "crs", None), settings)
-    if crs != settings.recording.crs:  # --crs wins; the run reads it from the settings
-        settings = settings.replace(recording=dataclasses.replace(settings.recording, crs=crs))
+    settings = with_recording_options(args, load_settings(args.config))  # the run reads them from the settings
+    crs = settings.recording.crs
     # every input checked before the output folder exists: a failure leaves nothing behind
     read_truth(args.truth)
     if args.bel is not None and not 0.0 <= args.bel <= 1.0:

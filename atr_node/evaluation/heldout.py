@@ -229,10 +229,7 @@ def k_intensity(mean: np.ndarray, nu: np.ndarray | float, rng: np.random.Generat
 
     Its normalised second moment is ``E[I^2] / E[I]^2 = 2 (1 + 1/nu)`` [1]_.
     """
-    mean = np.asarray(mean, dtype=np.float64)
-    nu_a = np.broadcast_to(np.asarray(nu, dtype=np.float64), mean.shape)
-    texture = rng.gamma(nu_a, 1.0 / nu_a)
-    return mean * texture * rng.exponential(1.0, mean.shape)
+    return k_intensity_correlated(mean, nu, rng, texture_px=0.0, speckle_px=0.0)
 
 
 def k_intensity_correlated(mean: np.ndarray, nu: np.ndarray | float, rng: np.random.Generator, *,
@@ -596,11 +593,8 @@ def _render_side(leg: _Leg, side: str, rows: np.ndarray, objects: list[_Object],
     cos_flat = h / np.hypot(r_safe, h)
     mean = LEVEL * refl * (cos_loc / cos_flat) ** 2 * _gain(r, v.max_range_m)[None, :] * lit
     nu_px = nu * np.exp(NU_VARIATION * nu_field(e, n))
-    if v.texture_m > 0 or v.speckle_px > 0:
-        k = k_intensity_correlated(mean, nu_px, rng, texture_px=(v.texture_m / dx, v.texture_m / dr),
-                                   speckle_px=v.speckle_px)
-    else:
-        k = k_intensity(mean, nu_px, rng)
+    k = k_intensity_correlated(mean, nu_px, rng, texture_px=(v.texture_m / dx, v.texture_m / dr),
+                               speckle_px=v.speckle_px)
     px = k + NOISE_FLOOR * LEVEL * rng.exponential(1.0, mean.shape)
     px[:, r < NADIR_GAP_M] = np.nan
     return px.astype(np.float32)
@@ -752,7 +746,7 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                             "K: mean * Gamma(nu, 1/nu) (copula, correlated over texture_m) * |c|^2 (smoothed over "
                             "speckle_px, mean 1)", "nu": _r(nu), "nu_variation": NU_VARIATION},
                 "level": LEVEL, "noise_floor": NOISE_FLOOR,
-                "gain": "(0.55 + 0.45 min(r/15, 1)) (1 - 0.4 (r/60)^2), times (cos t_loc / cos t_flat)^2",
+                "gain": f"(0.55 + 0.45 min(r/15, 1)) (1 - 0.4 (r/{v.max_range_m:g})^2), times (cos t_loc / cos t_flat)^2",
                 "sensor": {k: getattr(SENSOR, k) for k in ("frequency_hz", "bandwidth_hz", "tx_length_m", "rx_length_m",
                                                           "n_rx", "sas")},
                 "per_leg": [{"leg": lg.index, "heading_deg": lg.heading_deg, "start_east_m": _r(lg.start_e_m),

@@ -416,17 +416,15 @@ class JsfReader(XtfReader):
 
     def _read_positions(self, crs: str) -> Projection | None:
         # JSF says per ping whether positions are degrees or projected: the CRS is checked now
-        # (one line for a bad one) and used only by pings in projected units
-        return projection(crs) if crs else None
-
-    def _check_frequency(self) -> None:
-        # JSF: the side-scan subsystem is chosen by number (``subsystem``), not by frequency;
-        # said once per file and process (a command opens a file twice: checked, then read)
+        # (one line for a bad one) and used only by pings in projected units. The side-scan
+        # subsystem is chosen by number (``subsystem``), not by frequency: a frequency asked
+        # is said once per file and process (a command opens a file twice: checked, then read)
         if self.frequency != "high" and str(self.path) not in _FREQUENCY_SAID:
             _FREQUENCY_SAID.add(str(self.path))
             log.warning("%s: --frequency (recording.frequency) chooses the channels of an XTF file; a JSF file's "
                         "side-scan subsystem is chosen by number: atr-node convert %s OUT.atrlog --subsystem "
                         "20|21|22", self.path, self.path)
+        return projection(crs) if crs else None
 
     def _items(self) -> Iterator[XtfPing | XtfNav | XtfSerial]:
         return iter_jsf_items(self.path, self.stats, subsystem=self.subsystem, positions=self.positions)

@@ -48,7 +48,7 @@ from ..records.tile import SensorInfo, Tile, TileNav
 from .atrlog import LogRecord
 from .nmea_encode import KNOT_M_S, NmeaError, encode_dpt, encode_gga, encode_hdt, encode_zda, format_sentence
 from .xtf_bottom import BottomTrack, shares_axis, track_bottom
-from .xtf_packets import XtfNav, XtfPing, XtfSerial, check_file_frequency, iter_xtf_items, note_fields, read_positions
+from .xtf_packets import XtfNav, XtfPing, XtfSerial, iter_xtf_items, note_fields, read_positions
 from .xtf_stats import XtfStats
 
 __all__ = ["DEFAULT_TILE_PINGS", "XtfReader", "XtfStats", "iter_xtf_records"]
@@ -179,20 +179,15 @@ class XtfReader:
         self.mission, self.leg, self.seq0 = mission or self.path.stem or "xtf", int(leg or 0), int(seq0 or 0)
         self.sensor = sensor or SensorSettings()
         self.stats = XtfStats(path=str(self.path))
-        # what the positions are is decided from the file header now, so that a file that
-        # needs --crs fails before a command writes anything
-        self.positions = self._read_positions(crs)
+        # what the positions are, and whether the frequency asked is there, is decided from the
+        # file header now, so that a file that needs --crs fails before a command writes anything
         self.frequency = frequency_choice(frequency)
-        self._check_frequency()
+        self.positions = self._read_positions(crs)
 
     def _read_positions(self, crs: str):
-        """What the file's positions are (its header); a hook other formats (JSF) override."""
-        return read_positions(self.path, crs)
-
-    def _check_frequency(self) -> None:
-        """A frequency in kHz the header's side-scan channels do not have fails now (a hook JSF
-        overrides: its subsystems are chosen by number)."""
-        check_file_frequency(self.path, self.frequency)
+        """What the file's positions are, the frequency asked checked on the same header read;
+        a hook other formats (JSF) override."""
+        return read_positions(self.path, crs, frequency=self.frequency)
 
     def _use_header(self, header) -> None:
         """Mission, leg and seq written by :mod:`.xtf_write` are the defaults of the arguments."""

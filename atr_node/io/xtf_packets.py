@@ -265,14 +265,17 @@ def file_positions(header: XTFFileHeader, path: str, crs: str = "", *, option: s
     return XtfPositions(units, projection(crs, option=option))
 
 
-def read_positions(path: str | os.PathLike[str], crs: str = "", *, option: str = "--crs") -> XtfPositions:
-    """:func:`file_positions` of a file, reading its header only (so a command fails at once)."""
+def read_positions(path: str | os.PathLike[str], crs: str = "", *, option: str = "--crs",
+                   frequency: str | float = "high") -> XtfPositions:
+    """:func:`file_positions` of a file, reading its header only (so a command fails at once),
+    and :func:`check_frequency` of ``frequency`` on the same header."""
     path = str(path)
     try:
         with open(path, "rb") as fh:
             header = read_file_header(fh, path)
     except OSError as exc:
         raise LogFormatError(f"cannot read: {exc.strerror or exc}", path=path) from None
+    check_frequency(header, frequency, path)
     return file_positions(header, path, crs, option=option)
 
 
@@ -317,7 +320,7 @@ def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfS
         k = pick_channel([c[0] for c in cands], frequency)
         for j, c in enumerate(cands):
             if j != k:
-                stats.channels_unused[_khz_text(c[0])] += 1
+                stats.channels_unused[c[0]] += 1
         if k is None:
             continue
         freq, ch, data, info = cands[k]  # only the channel read is looked into
@@ -333,7 +336,7 @@ def parse_ping(p: XTFPingHeader, header: XTFFileHeader, offset: int, stats: XtfS
         if side == "port":  # stored far range first: column 0 must be nearest the sonar
             samples = samples[::-1]
         dr = slant / n
-        stats.channels_used[_khz_text(freq)] += 1
+        stats.channels_used[freq] += 1
         channels[side] = XtfChannel(side=side, samples=np.ascontiguousarray(samples),
                                     range0_m=float(ch.TimeDelay) * sv + 0.5 * dr, dr_m=dr, slant=is_slant,
                                     frequency_hz=freq, bandwidth_hz=float(ch.BandWidth))
@@ -366,11 +369,12 @@ def pick_channel(freqs_hz: list[float], frequency: str | float = "high") -> int 
         return min(known, key=lambda i: freqs_hz[i])
     want = float(frequency) * 1e3
     best = min(known, key=lambda i: abs(freqs_hz[i] - want))
-    return best if abs(freqs_hz[best] - want) <= FREQUENCY_TOLERANCE * freqs_hz[best] else None
+    return best if _near(freqs_hz[best], want) else None
 
 
-def _khz_text(hz: float) -> str:
-    return f"{hz / 1e3:g} kHz" if hz > 0 else "unknown frequency"
+def _near(channel: float, asked: float) -> bool:
+    """A frequency asked for is a channel's when within :data:`FREQUENCY_TOLERANCE` of it (any unit)."""
+    return abs(channel - asked) <= FREQUENCY_TOLERANCE * channel
 
 
 def side_scan_frequencies_khz(header: XTFFileHeader) -> list[float]:
@@ -386,15 +390,9 @@ def check_frequency(header: XTFFileHeader, frequency: str | float, path: str, op
     if isinstance(frequency, str):
         return
     have = side_scan_frequencies_khz(header)
-    if have and not any(abs(f - frequency) <= FREQUENCY_TOLERANCE * f for f in have):
+    if have and not any(_near(f, frequency) for f in have):
         raise LogFormatError(f"no side-scan channel at {frequency:g} kHz ({option}): the file's are at "
                              f"{', '.join(f'{f:g}' for f in have)} kHz; give one of them, high or low", path=path)
-
-
-def check_file_frequency(path: str | os.PathLike[str], frequency: str | float, option: str = "--frequency") -> None:
-    """:func:`check_frequency` on the header of the XTF file at ``path`` (read now)."""
-    with open(path, "rb") as fh:
-        check_frequency(read_file_header(fh, str(path)), frequency, str(path), option)
 
 
 def parse_nav_packet(kind: int, raw: bytes, header: XTFFileHeader, offset: int = 0,

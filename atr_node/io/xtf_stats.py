@@ -30,10 +30,10 @@ class XtfStats:
     """Sonar pings not used, by reason (``bad_time``, ``time_backwards``, ``no_range``, ...)."""
     pings_without_nav: int = 0
     channels_used: Counter = field(default_factory=Counter)
-    """Side-scan channels read (one per side and ping), by frequency (``500 kHz``)."""
+    """Side-scan channels read (one per side and ping), by frequency in Hz (0: unknown)."""
     channels_unused: Counter = field(default_factory=Counter)
     """Side-scan channels of a side that had another one (dual-frequency sonars) and were not
-    read, by frequency."""
+    read, by frequency in Hz."""
     tiles: int = 0
     nav_fixes: int = 0
     nmea: Counter = field(default_factory=Counter)
@@ -97,8 +97,11 @@ class XtfStats:
         --frequency high, low or kHz chooses``."""
         if not self.channels_unused:
             return ""
-        used = ", ".join(f"{k} ({v})" for k, v in sorted(self.channels_used.items()))
-        unused = ", ".join(f"{k} ({v})" for k, v in sorted(self.channels_unused.items()))
+        def text(c: Counter) -> str:
+            return ", ".join(f"{hz / 1e3:g} kHz ({n})" if hz > 0 else f"unknown frequency ({n})"
+                             for hz, n in sorted(c.items()))
+
+        used, unused = text(self.channels_used), text(self.channels_unused)
         return (f"side-scan: {used or 'nothing'} read, {unused} not (channel-pings); "
                 "--frequency high, low or kHz chooses")
 

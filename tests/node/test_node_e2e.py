@@ -166,7 +166,7 @@ def test_sigkill_mid_replay_then_restart_gives_the_same_contacts(mission, tmp_pa
         def current() -> str | None:
             return (state / "CURRENT").read_text() if (state / "CURRENT").exists() else None
 
-        wait_until(lambda: proc.poll() is not None or current() not in (None, before), poll_s=0.02)
+        assert wait_until(lambda: proc.poll() is not None or current() not in (None, before), poll_s=0.02)
         if proc.poll() is None:
             proc.send_signal(signal.SIGKILL)
             proc.wait(timeout=WAIT_S)

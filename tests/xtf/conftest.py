@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -51,3 +53,9 @@ def make_tile(side: str = "stbd", *, rows: int = 4, cols: int = 16, seq: int = 0
     sensor = SensorInfo(frequency_hz=600e3, bandwidth_hz=30e3, tx_length_m=0.2, rx_length_m=1.2, n_rx=1, sas=False)
     return Tile(mission=mission, leg=2, side=side, seq=seq, pixels=px, kind="amplitude", range0_m=range0_m,
                 dr_m=dr_m, dx_m=0.12, slant=slant, ping_time=ping_time, nav=tn, sensor=sensor, wire_dtype=dtype)
+
+
+def run_cli(*args, timeout: float = 300):
+    """``python -m atr_node ARGS`` in a subprocess (stdout and stderr captured as text)."""
+    return subprocess.run([sys.executable, "-m", "atr_node", *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout)

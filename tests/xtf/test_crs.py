@@ -11,8 +11,6 @@ import json
 import logging
 import math
 import struct
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -27,6 +25,8 @@ from atr_node.io.crs import projection
 from atr_node.io.xtf import XtfReader
 from atr_node.io.xtf_write import XtfWriter
 from atr_node.records.tile import Tile
+
+from .conftest import run_cli
 
 UTM19 = "EPSG:32619"  # the Iver2 recording is at 68.8 W: UTM zone 19 north
 NAV_UNITS_AT = 164  # byte offset of XTFFileHeader.NavUnits
@@ -49,9 +49,6 @@ def _tiles(path, **kw):
     return [Tile.from_map(r.msg) for r in XtfReader(path, **kw) if r.link == "sonar"]
 
 
-def _run(*args, timeout=300):
-    return subprocess.run([sys.executable, "-m", "atr_node", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout)
 
 
 # -- the projection against an independent reference -----------------------------------------
@@ -184,8 +181,8 @@ def test_calibration_sources_take_the_crs(pair):
 def test_replay_with_crs_gives_the_contacts_of_the_latlon_file(pair, tmp_path):
     latlon, utm = pair
     common = ["--online-calibration", "off", "--publish", "none", "--workers", "0", "--quiet"]
-    r1 = _run("replay", latlon, *common, "--contacts-out", tmp_path / "a.jsonl")
-    r2 = _run("replay", utm, "--crs", UTM19, *common, "--contacts-out", tmp_path / "b.jsonl")
+    r1 = run_cli("replay", latlon, *common, "--contacts-out", tmp_path / "a.jsonl")
+    r2 = run_cli("replay", utm, "--crs", UTM19, *common, "--contacts-out", tmp_path / "b.jsonl")
     assert r1.returncode == 0 and r2.returncode == 0, r1.stderr + r2.stderr
     a = [json.loads(x) for x in (tmp_path / "a.jsonl").read_text().splitlines()]
     b = [json.loads(x) for x in (tmp_path / "b.jsonl").read_text().splitlines()]
@@ -200,7 +197,7 @@ def test_replay_with_crs_gives_the_contacts_of_the_latlon_file(pair, tmp_path):
 
 def test_replay_without_crs_fails_in_one_line_and_writes_nothing(pair, tmp_path):
     outs = [tmp_path / "c.jsonl", tmp_path / "s.json", tmp_path / "d.jsonl"]
-    r = _run("replay", pair[1], "--online-calibration", "off", "--publish", "none", "--workers", "0",
+    r = run_cli("replay", pair[1], "--online-calibration", "off", "--publish", "none", "--workers", "0",
              "--contacts-out", outs[0], "--summary", outs[1], "--detections-out", outs[2],
              "--state-dir", tmp_path / "state", timeout=120)
     assert r.returncode == 1
@@ -244,10 +241,10 @@ def test_convert_both_ways_with_crs(pair, tmp_path, capsys):
 
 
 def test_calibrate_and_batch_fail_at_once_without_crs(pair, tmp_path):
-    r = _run("calibrate", "--input", pair[1], "--out", tmp_path / "m.json", "--no-plots", "--no-progress",
+    r = run_cli("calibrate", "--input", pair[1], "--out", tmp_path / "m.json", "--no-plots", "--no-progress",
              timeout=120)
     assert r.returncode == 1 and "--crs" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    r = _run("batch", pair[1], "--scheduler", "serial", "--quiet", "--contacts-out", tmp_path / "c.jsonl",
+    r = run_cli("batch", pair[1], "--scheduler", "serial", "--quiet", "--contacts-out", tmp_path / "c.jsonl",
              timeout=120)
     assert r.returncode == 1 and "--crs" in r.stderr and "attempt" not in r.stderr
     assert not (tmp_path / "m.json").exists() and not (tmp_path / "c.jsonl").exists()
@@ -258,19 +255,19 @@ def test_evaluate_log_takes_the_crs(pair, tmp_path):
     file fails in one line naming the option, before --out exists; with it the run scores."""
     truth = tmp_path / "truth.csv"
     truth.write_text("lat_deg,lon_deg,shape\n48.0,-68.0,cylinder\n")
-    r = _run("evaluate", "--log", pair[1], "--truth", truth, "--out", tmp_path / "ev", "--online-calibration", "off",
+    r = run_cli("evaluate", "--log", pair[1], "--truth", truth, "--out", tmp_path / "ev", "--online-calibration", "off",
              timeout=300)
     assert r.returncode == 1 and "--crs" in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert not (tmp_path / "ev").exists()
-    r = _run("evaluate", "--log", pair[1], "--truth", truth, "--out", tmp_path / "ev", "--online-calibration", "off",
+    r = run_cli("evaluate", "--log", pair[1], "--truth", truth, "--out", tmp_path / "ev", "--online-calibration", "off",
              "--crs", UTM19, timeout=300)
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "ev" / "contacts.jsonl").is_file()
 
 
 def test_batch_with_crs_gives_the_contacts_of_the_latlon_file(pair, tmp_path):
-    r1 = _run("batch", pair[0], "--scheduler", "serial", "--quiet", "--contacts-out", tmp_path / "a.jsonl")
-    r2 = _run("batch", pair[1], "--crs", UTM19, "--scheduler", "serial", "--quiet",
+    r1 = run_cli("batch", pair[0], "--scheduler", "serial", "--quiet", "--contacts-out", tmp_path / "a.jsonl")
+    r2 = run_cli("batch", pair[1], "--crs", UTM19, "--scheduler", "serial", "--quiet",
               "--contacts-out", tmp_path / "b.jsonl", "--summary", tmp_path / "s.json")
     assert r1.returncode == 0 and r2.returncode == 0, r1.stderr + r2.stderr
     a = [json.loads(x) for x in (tmp_path / "a.jsonl").read_text().splitlines()]

@@ -11,8 +11,6 @@ are set by the merge.
 from __future__ import annotations
 
 import dataclasses
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -27,7 +25,7 @@ from atr_node.io.xtf_packets import pick_channel
 from atr_node.io.xtf_write import write_xtf
 from atr_node.records.tile import Tile
 
-from .conftest import make_tile
+from .conftest import make_tile, run_cli
 
 ROWS, COLS = 6, 20
 
@@ -113,7 +111,7 @@ def test_the_high_frequency_channels_are_read_by_default_and_the_others_said(tmp
     path, tiles = dual_frequency_xtf(tmp_path)
     got, stats = _read(path)
     _same(got, tiles["high"])
-    assert stats.channels_used == {"500 kHz": 2 * ROWS} and stats.channels_unused == {"100 kHz": 2 * ROWS}
+    assert stats.channels_used == {500e3: 2 * ROWS} and stats.channels_unused == {100e3: 2 * ROWS}
     line = stats.frequency_line()
     assert "500 kHz (12) read, 100 kHz (12) not" in line and "--frequency" in line
     assert line in stats.summary()
@@ -153,7 +151,8 @@ def test_unknown_frequencies_read_the_first_channel_of_each_side(tmp_path):
         got, stats = _read(path, frequency=choice)
         np.testing.assert_array_equal(got["port"].pixels, tiles["low"][0].pixels)
         np.testing.assert_array_equal(got["stbd"].pixels, tiles["low"][1].pixels)
-        assert stats.channels_unused == {"unknown frequency": 2 * ROWS}
+        assert stats.channels_unused == {0.0: 2 * ROWS}
+        assert "unknown frequency (12) not" in stats.frequency_line()
 
 
 def test_pick_channel_rules():
@@ -212,25 +211,20 @@ def test_recording_frequency_key_accepts_names_and_kilohertz(tmp_path):
         check_positions([path], "", bad)
 
 
-def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "atr_node", *map(str, args)], capture_output=True, text=True,
-                          timeout=300)
-
-
 def test_convert_and_replay_take_the_option(tmp_path):
     path, tiles = dual_frequency_xtf(tmp_path)
     out = tmp_path / "low.atrlog"
-    r = _cli("convert", path, out, "--frequency", "low")
+    r = run_cli("convert", path, out, "--frequency", "low")
     assert r.returncode == 0, r.stderr
     assert "side-scan: 100 kHz (12) read, 500 kHz (12) not" in r.stdout
     got = {t.side: t for t in (Tile.from_map(x.msg) for x in read_atrlog(out) if x.link == "sonar")}
     _same(got, tiles["low"])
     for cmd in (["convert", path, tmp_path / "x.atrlog"], ["replay", path]):
-        r = _cli(*cmd, "--frequency", "300")
+        r = run_cli(*cmd, "--frequency", "300")
         assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert "no side-scan channel at 300 kHz (--frequency)" in r.stderr
     assert not (tmp_path / "x.atrlog").exists()
-    r = _cli("replay", path, "--frequency", "0")
+    r = run_cli("replay", path, "--frequency", "0")
     assert r.returncode == 1 and r.stderr.strip().endswith("--frequency '0': expected high, low or a frequency in "
                                                            "kHz > 0"), r.stderr
 
@@ -246,7 +240,7 @@ def test_every_command_that_reads_xtf_takes_the_option(tmp_path, command):
     args = {"calibrate": ["calibrate", "--input", path, "--out", out / "m.json", "--no-progress"],
             "evaluate": ["evaluate", "--log", path, "--truth", truth, "--out", out],
             "batch": ["batch", path, "--contacts-out", out / "c.jsonl"]}[command]
-    r = _cli(*args, "--frequency", "300")
+    r = run_cli(*args, "--frequency", "300")
     assert r.returncode == 1 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert "no side-scan channel at 300 kHz (--frequency)" in r.stderr
     assert not out.exists()

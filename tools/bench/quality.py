@@ -230,6 +230,12 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
 
 
 @functools.lru_cache(maxsize=1)
+def _variant_names() -> list[str]:
+    from atr_node.evaluation.heldout import VARIANTS
+
+    return list(VARIANTS)
+
+
 def _real_tool():
     """tools/figures/real_recordings.py: the objects read by eye on the shared recordings and
     how a contact is matched to them (one definition for the figures and this benchmark)."""
@@ -387,7 +393,8 @@ def main_heldout(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", default=",".join(map(str, SEEDS)), help="comma-separated held-out seeds")
     ap.add_argument("--variants", default="base", metavar="NAME[,NAME]",
                     help="scene variants (atr_node.evaluation.heldout.VARIANTS): base (default, the benchmark), or "
-                         "stress variants of the same seeds: fine, coarse, clumpy, high, low; 'all' = every one")
+                         "stress variants of the same seeds: " + ", ".join(v for v in _variant_names() if v != "base")
+                         + "; 'all' = every one")
     ap.add_argument("--legs", type=int, default=5)
     ap.add_argument("--leg-length", type=float, default=200.0, help="metres")
     ap.add_argument("--config", default=None, help="node settings (TOML; default built-in)")

@@ -32,7 +32,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from atr_node.config import frequency_choice, load_settings  # noqa: E402
+from atr_node.commands._crs import add_crs_argument, add_frequency_argument, with_recording_options  # noqa: E402
+from atr_node.config import load_settings  # noqa: E402
 from atr_node.evaluation.waterfall import ZONES, SidePings, draw_waterfall, locate_contacts  # noqa: E402
 from atr_node.geo import MissionFrame  # noqa: E402
 from atr_node.records.tile import Tile  # noqa: E402
@@ -105,6 +106,14 @@ def match_marks(stem: str, places, dx: float) -> tuple[list[tuple[str, list[int]
     return found, wreck
 
 
+def _recording_parser() -> argparse.ArgumentParser:
+    """The replay options that change what is read (given after ``--``)."""
+    ap = argparse.ArgumentParser(add_help=False)
+    add_crs_argument(ap)
+    add_frequency_argument(ap)
+    return ap
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     extra: list[str] = []
@@ -122,10 +131,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.config:
         extra = ["--config", args.config, *extra]
     band_m = settings.sensor.first_return_band_m
-    crs = extra[extra.index("--crs") + 1] if "--crs" in extra[:-1] else settings.recording.crs
-    # the waterfall is drawn from the channels the replay reads (--frequency after --, or the config's)
-    frequency = (frequency_choice(extra[extra.index("--frequency") + 1]) if "--frequency" in extra[:-1]
-                 else settings.recording.frequency)
+    # the waterfall is drawn from what the replay reads: --crs and --frequency after --, or the config's
+    rec_args, _ = _recording_parser().parse_known_args(extra)
+    rec = with_recording_options(rec_args, settings).recording
+    crs, frequency = rec.crs, rec.frequency
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     table = []
@@ -180,4 +189,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from atr_node.errors import AtrError
+
+    try:
+        sys.exit(main())
+    except AtrError as exc:  # a bad --config, --crs or --frequency: one line
+        print(f"real_recordings: {exc}", file=sys.stderr)
+        sys.exit(2)

@@ -29,6 +29,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from atr_node.geo import MissionFrame, tile_geometry  # noqa: E402
+from atr_node.commands._crs import add_frequency_argument  # noqa: E402
 from atr_node.io.xtf import XtfReader  # noqa: E402
 from atr_node.io.xtf_hits import channel_sides, locate_hit, read_hits, read_survey_csv  # noqa: E402
 from atr_node.records.tile import Tile  # noqa: E402
@@ -60,8 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--detections", help="JSON lines of detections (atr-node replay --detections-out) to mark")
     ap.add_argument("--altitude", choices=("altimeter", "sonar"), default="altimeter",
                     help="altitude for slant-to-ground: the recorded altimeter (default) or the sonar's first return")
-    ap.add_argument("--frequency", default="high", metavar="high|low|KHZ",
-                    help="a dual-frequency file's side-scan channels (default high; docs/xtf.md)")
+    add_frequency_argument(ap)
     ap.add_argument("--quick", action="store_true", help="smaller, coarser figure (fast check)")
     args = ap.parse_args(argv)
 
@@ -69,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    reader = XtfReader(args.xtf, altitude=args.altitude, frequency=args.frequency)
+    reader = XtfReader(args.xtf, altitude=args.altitude, frequency=args.frequency or "high")
     tiles = [Tile.from_map(r.msg) for r in reader if r.link == "sonar"]
     if not tiles:
         print(f"{args.xtf}: no side-scan pings\n{reader.stats.summary()}", file=sys.stderr)
