@@ -388,12 +388,14 @@ def test_independent_of_the_node_s_simulator_and_algorithms():
     assert set(SEABEDS) == {"sand", "ripples", "sassed"}
 
 
-def test_an_interrupted_scene_leaves_the_folder_as_it_was(tmp_path):
-    """Files are written into a hidden folder inside the scene's and moved in when the scene is
-    done: a run stopped midway (here by its progress callback, as Ctrl-C would) leaves no file
-    of it, and an earlier scene there stays whole."""
+def test_an_interrupted_scene_leaves_the_folder_as_it_was(sand, tmp_path):
+    """Files are written under hidden temporary names beside their final ones and renamed when
+    the scene is done: a run stopped midway (here by its progress callback, as Ctrl-C would)
+    leaves no file of it, and an earlier scene there stays whole."""
+    import shutil
+
     out = tmp_path / "scene"
-    generate_scene(out, seabed="sand", seed=3, **SMALL)
+    shutil.copytree(sand, out)  # an earlier scene in the folder
     before = {f: (out / f).read_bytes() for f in FILES}
 
     def stop(done, total):
