@@ -353,6 +353,12 @@ class CalibrationSettings:
     detectors' log likelihood ratios) is above this too: at ``z <= 0`` its joint responses are
     at least as likely on target-free seabed as on a target, and the look is a miss, not a weak
     detection (docs/fusion.md). ``-inf``: no such floor (models before 2026-11-26)."""
+    clip_headroom_db: float = 10.0
+    """Seabed whose mean intensity lies within this many dB of the recording's full scale (an
+    8-bit file's 255: :attr:`~atr_node.records.tile.Tile.saturation`) clips a target's echo: the
+    look score's likelihood ratios there come from the injected targets and clean cells there
+    (docs/fusion.md, "Clipped recordings"). 10 dB: a highlight 10 times the seabed's intensity,
+    about the injected population's median echo, reaches full scale."""
     pd_target: float = 0.95
     range_bin_m: float = 10.0
     online: bool = True
@@ -404,6 +410,7 @@ class CalibrationSettings:
         _check(self.prior in ("area", "fixed"), "calibration.prior", "must be 'area' or 'fixed'")
         _check(self.look_score in ("lr", "fisher"), "calibration.look_score", "must be 'lr' or 'fisher'")
         _check(0.0 <= self.look_pd < 1.0, "calibration.look_pd", "must be in [0, 1)")
+        _check(math.isfinite(self.clip_headroom_db), "calibration.clip_headroom_db", "must be a finite number of dB")
         _check(not math.isnan(self.look_z_min) and self.look_z_min < math.inf, "calibration.look_z_min",
                "must be a number below inf (-inf: no floor)")
         _check(0.0 < self.target_density_km2 <= 1e6, "calibration.target_density_km2", "must be in (0, 1e6]")

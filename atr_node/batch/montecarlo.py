@@ -8,6 +8,8 @@ whatever the number of workers, and the model estimated from them is the same.
 
 from __future__ import annotations
 
+import dataclasses
+
 from typing import Any, Sequence
 
 
@@ -54,5 +56,4 @@ def run_calibration(images: Sequence[CalibrationImage], settings: Any, engine: E
                  "engine": engine.describe()})
     prov.update(_settings_provenance(settings))
     prov["population"]["n_nominal"] = int(out.nominal.sum())
-    return Responses(out.detectors, out.target, out.nontarget, out.target_range_m, out.target_shape, prov,
-                     out.target_traits), outcomes
+    return dataclasses.replace(out, provenance=prov), outcomes

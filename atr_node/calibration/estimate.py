@@ -160,8 +160,21 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     tails = {d: _looks.tail_table(responses.nontarget[d]) for d in dets}
     lrs = ({d: _looks.lr_table(responses.target[d], responses.nontarget[d], tail=tails[d]) for d in dets}
            if calibration.look_score == "lr" else None)
-    terms = tails if lrs is None else lrs
+    # places where the recording clips (an 8-bit file's bright seabed): their own likelihood
+    # ratios, and the others' from the others, when both have enough targets and cells
     sizes = {np.asarray(responses.nontarget[d]).size for d in dets}
+    lrs_clipped, clipped_at, limit = None, None, calibration.clip_headroom_db
+    h_t, h_n = responses.target_traits.get("headroom_db"), responses.nontarget_headroom_db
+    if lrs is not None and h_t is not None and h_n is not None and {np.asarray(h_n).size} == sizes:
+        c_t, c_n = _looks.clipped(h_t, limit), _looks.clipped(h_n, limit)
+        m = _looks.MIN_STRATUM_TARGETS
+        if min(int(c_t.sum()), int((~c_t).sum())) >= m and min(int(c_n.sum()), int((~c_n).sum())) >= 4 * m:
+            lrs = {d: _looks.lr_table(responses.target[d][~c_t], responses.nontarget[d][~c_n], tail=tails[d])
+                   for d in dets}
+            lrs_clipped = {d: _looks.lr_table(responses.target[d][c_t], responses.nontarget[d][c_n], tail=tails[d])
+                           for d in dets}
+            clipped_at = (c_t, c_n)
+    terms = tails if lrs is None else lrs
     info: dict[str, Any] = {"score": _looks.LR_SCORE_DEFINITION if lrs is not None else _looks.SCORE_DEFINITION,
                             "fired": "at least one detector of the set above its threshold",
                             "confidence": "P(T | Z >= z, fired), prior per cell as for the detectors",
@@ -170,16 +183,21 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
                                   + (f"; or look_z_min {calibration.look_z_min:g} itself where that is higher, "
                                      "tau_source look_z" if lrs is not None else "")
                                   + "), per range bin"}
+    if clipped_at is not None:
+        info["clipped"] = (f"own likelihood ratios where the seabed is within {limit:g} dB of the recording's full scale: "
+                           f"{int(clipped_at[0].sum())} targets, {int(clipped_at[1].sum())} cells there; the others from "
+                           f"{int((~clipped_at[0]).sum())} targets, {int((~clipped_at[1]).sum())} cells")
     if lrs is not None:
         # None: no floor (-inf has no JSON form)
         info["look_z_min"] = float(calibration.look_z_min) if math.isfinite(calibration.look_z_min) else None
     if len(sizes) != 1:
         info["skipped"] = "non-target responses of the detectors are not joint (different lengths)"
-        return _looks.LookModel(tails, {}, info, lrs)
+        return _looks.LookModel(tails, {}, info, lrs, lrs_clipped, None if lrs_clipped is None else float(limit))
     tables = {}
     for n in range(1, len(dets) + 1):
         for subset in itertools.combinations(dets, n):
-            z_t, f_t, z_n, f_n = _looks.look_scores(responses.target, responses.nontarget, taus, terms, subset)
+            z_t, f_t, z_n, f_n = _looks.look_scores(responses.target, responses.nontarget, taus, terms, subset,
+                                                    clipped_terms=lrs_clipped, clipped_at=clipped_at)
             fired_z = np.concatenate([z_t[f_t & np.isfinite(z_t)], z_n[f_n & np.isfinite(z_n)]])
             # every fired response above a threshold below all of them, the others below it ...
             tau = float(fired_z.min()) - 1e-9 * max(1.0, abs(float(fired_z.min()))) if fired_z.size else 0.0
@@ -207,4 +225,4 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
             pd_tau = float(np.mean(hit_t[covered])) if covered.any() else math.nan
             tables[_looks.subset_key(subset)] = DetectorPerformance(tau=tau, confidence=conf, pyr=pyr, tau_source=source,
                                                              pd_at_tau=pd_tau)
-    return _looks.LookModel(tails, tables, info, lrs)
+    return _looks.LookModel(tails, tables, info, lrs, lrs_clipped, None if lrs_clipped is None else float(limit))

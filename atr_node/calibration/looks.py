@@ -58,6 +58,10 @@ TAIL_EXTRA = math.log(10.0)
 """How far u_d goes beyond the largest background response: one decade of survival."""
 TAIL_MIN_EXCESS = 10
 """Fewest background responses over the tail threshold to fit the exponential tail."""
+MIN_STRATUM_TARGETS = 50
+"""Fewest injected targets (and 4 times as many clean cells) on each side of
+``calibration.clip_headroom_db`` for the clipped places to get their own likelihood ratios
+(:attr:`LookModel.lrs_clipped`); fewer: one table for all."""
 
 
 def _canonical(detectors: Sequence[str]) -> list[str]:
@@ -194,6 +198,14 @@ class LookModel:
     info: Mapping[str, Any] = field(default_factory=dict)
     lrs: Mapping[str, LrTable] | None = None
     """Per-detector likelihood ratios (``look_score = "lr"``): z sums these, not the tails."""
+    lrs_clipped: Mapping[str, LrTable] | None = None
+    """The likelihood ratios of places where the recording clips (headroom below
+    :attr:`clip_headroom_db`, :func:`clipped`): there a target's echo is cut at the sensor's
+    full scale, so the highlight detectors respond less to a target than on darker seabed, and
+    the same response says more. None: one table for every place (no place of the calibration
+    images clipped, or too few, :data:`MIN_STRATUM_TARGETS`)."""
+    clip_headroom_db: float | None = None
+    """The headroom below which :attr:`lrs_clipped` applies (``calibration.clip_headroom_db``)."""
 
     @property
     def terms(self) -> Mapping[str, Any]:
@@ -201,15 +213,24 @@ class LookModel:
         the background tails."""
         return self.tails if self.lrs is None else self.lrs
 
+    def terms_at(self, headroom_db: float) -> Mapping[str, Any]:
+        """The terms of a place with this headroom: :attr:`lrs_clipped` where it clips, else
+        :attr:`terms`."""
+        if self.lrs_clipped is not None and clipped(headroom_db, self.clip_headroom_db):
+            return self.lrs_clipped
+        return self.terms
+
     def table(self, detectors: Sequence[str]) -> Any | None:
         """The look table of this detector set, None if the model has none for it."""
         return self.tables.get(subset_key(detectors))
 
-    def score(self, responses: Mapping[str, np.ndarray | float], detectors: Sequence[str]) -> np.ndarray:
+    def score(self, responses: Mapping[str, np.ndarray | float], detectors: Sequence[str], *,
+              headroom_db: float = math.inf) -> np.ndarray:
         """``z`` of joint responses: ``responses[d]`` per detector of ``detectors`` (NaN = not
-        covered, adds 0); detectors without a tail table add 0."""
+        covered, adds 0); detectors without a tail table add 0. ``headroom_db``: of the place
+        (:func:`headroom_db`; inf = unknown or far from clipping)."""
         # canonical order: the sum's rounding does not depend on the order detectors are listed
-        terms = self.terms
+        terms = self.terms_at(headroom_db)
         us = [terms[d](responses[d]) for d in _canonical(detectors) if d in terms and d in responses]
         return np.zeros(np.shape(next(iter(responses.values()), 0.0))) if not us else _combine(us)
 
@@ -225,24 +246,53 @@ def _combine(us: list[np.ndarray]) -> np.ndarray:
 
 
 def look_scores(target: Mapping[str, np.ndarray], nontarget: Mapping[str, np.ndarray], taus: Mapping[str, float],
-                terms: Mapping[str, Any], detectors: Sequence[str]
+                terms: Mapping[str, Any], detectors: Sequence[str], *,
+                clipped_terms: Mapping[str, Any] | None = None,
+                clipped_at: tuple[np.ndarray, np.ndarray] | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(z_t, fired_t, z_n, fired_n) of a detector set: z NaN where no detector covered;
-    ``terms``: the per-detector terms (:attr:`LookModel.terms`)."""
+    ``terms``: the per-detector terms (:attr:`LookModel.terms`); ``clipped_terms`` those of
+    the targets and cells where ``clipped_at`` (bool masks of the targets, of the cells) is
+    true (:attr:`LookModel.lrs_clipped`)."""
     out = []
     detectors = _canonical(detectors)
-    for resp in (target, nontarget):
+    for k, resp in enumerate((target, nontarget)):
         arrs = [np.asarray(resp[d], dtype=np.float64) for d in detectors]
         covered = np.zeros(arrs[0].shape, dtype=bool)
         fired = np.zeros(arrs[0].shape, dtype=bool)
         us = []
         for d, a in zip(detectors, arrs):
-            us.append(terms[d](a))
+            if clipped_terms is not None and clipped_at is not None:
+                us.append(np.where(clipped_at[k], clipped_terms[d](a), terms[d](a)))
+            else:
+                us.append(terms[d](a))
             covered |= np.isfinite(a)
             fired |= np.isfinite(a) & (a > taus[d])
         z = _combine(us)
         out += [np.where(covered, z, np.nan), fired]
     return out[0], out[1], out[2], out[3]
+
+
+def headroom_db(full_scale: float | None, background: np.ndarray | float) -> np.ndarray:
+    """How far below the recording's full scale (its clip level, intensity) the seabed's mean
+    intensity ``background`` lies, in dB: ``10 log10(full_scale / background)``. inf where the
+    full scale is unknown (None: float data) or the background is not a positive number (no
+    data); 0 or less where the seabed itself is at full scale."""
+    b = np.asarray(background, dtype=np.float64)
+    if full_scale is None or not math.isfinite(full_scale) or full_scale <= 0:
+        return np.full(b.shape, math.inf)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = 10.0 * np.log10(float(full_scale) / b)
+    return np.where(np.isfinite(b) & (b > 0), h, math.inf)
+
+
+def clipped(headroom: np.ndarray | float, limit_db: float | None) -> np.ndarray:
+    """Places where the recording clips a target's echo: headroom below ``limit_db``
+    (``calibration.clip_headroom_db``); none when it is None."""
+    h = np.asarray(headroom, dtype=np.float64)
+    if limit_db is None:
+        return np.zeros(h.shape, dtype=bool)
+    return h < float(limit_db)
 
 
 def with_prior(curve_c: np.ndarray, old_prior: float, new_prior: float) -> np.ndarray:
@@ -273,7 +323,10 @@ def looks_to_dict(looks: LookModel, detector_dict) -> dict[str, Any]:
                       for d, t in looks.tails.items()},
             "tables": {k: detector_dict(p) for k, p in looks.tables.items()},
             **({} if looks.lrs is None else
-               {"lr": {d: {"gamma": t.gamma.tolist(), "l": t.l.tolist()} for d, t in looks.lrs.items()}})}
+               {"lr": {d: {"gamma": t.gamma.tolist(), "l": t.l.tolist()} for d, t in looks.lrs.items()}}),
+            **({} if looks.lrs_clipped is None else
+               {"lr_clipped": {d: {"gamma": t.gamma.tolist(), "l": t.l.tolist()} for d, t in looks.lrs_clipped.items()},
+                "clip_headroom_db": float(looks.clip_headroom_db)})}
 
 
 def _knots(t: Any, name: str) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -311,21 +364,33 @@ def looks_from_dict(raw: Any, where: str, detector_from) -> LookModel:
         if not ok or np.any(u < 0):
             raise err(f"tails.{d}", "gamma must be increasing and u finite, >= 0 and non-decreasing, same length >= 2")
         tails[d] = TailTable(g, u, slope)
-    lrs = None
-    if "lr" in raw:
-        if not isinstance(raw["lr"], dict):
-            raise err("lr", "expected a map detector -> {gamma, l}")
-        lrs = {}
-        for d, t in raw["lr"].items():
+    def lr_section(name: str) -> dict[str, LrTable] | None:
+        if name not in raw:
+            return None
+        if not isinstance(raw[name], dict):
+            raise err(name, "expected a map detector -> {gamma, l}")
+        out = {}
+        for d, t in raw[name].items():
             try:
                 g, lv, ok = _knots(t, "l")
             except (TypeError, ValueError, KeyError, AttributeError):
-                raise err(f"lr.{d}", "needs lists of numbers 'gamma' and 'l'") from None
+                raise err(f"{name}.{d}", "needs lists of numbers 'gamma' and 'l'") from None
             if not ok:
-                raise err(f"lr.{d}", "gamma must be increasing and l finite and non-decreasing, same length >= 2")
+                raise err(f"{name}.{d}", "gamma must be increasing and l finite and non-decreasing, same length >= 2")
             if d not in tails:
-                raise err(f"lr.{d}", "a detector without a tail table")
-            lrs[str(d)] = LrTable(g, lv, tails[d])
+                raise err(f"{name}.{d}", "a detector without a tail table")
+            out[str(d)] = LrTable(g, lv, tails[d])
+        return out
+
+    lrs, lrs_clipped = lr_section("lr"), lr_section("lr_clipped")
+    clip_db = None
+    if lrs_clipped is not None:
+        if lrs is None or set(lrs_clipped) != set(lrs):
+            raise err("lr_clipped", "needs 'lr' of the same detectors")
+        clip_db = raw.get("clip_headroom_db")
+        if isinstance(clip_db, bool) or not isinstance(clip_db, (int, float)) or not math.isfinite(clip_db):
+            raise err("clip_headroom_db", f"must be a finite number with 'lr_clipped', got {clip_db!r}")
+        clip_db = float(clip_db)
     tables = {}
     for k, t in tables_raw.items():
         members = [m for m in str(k).split("+") if m]
@@ -335,4 +400,4 @@ def looks_from_dict(raw: Any, where: str, detector_from) -> LookModel:
                                      f"{missing or k!r}")
         tables[str(k)] = detector_from(t, where, f"looks.tables.{k}")
     info = raw.get("info") if isinstance(raw.get("info"), dict) else {}
-    return LookModel(tails, tables, info, lrs)
+    return LookModel(tails, tables, info, lrs, lrs_clipped, clip_db)

@@ -125,9 +125,10 @@ class PerformanceModel:
         """The look-level table (SPEC 6.1) of a detector set, None when the model has none."""
         return None if self.looks is None else self.looks.table(detectors)
 
-    def look_score(self, responses, detectors) -> np.ndarray:
-        """The look score z of joint responses (``responses[d]`` per detector)."""
-        return self.looks.score(responses, detectors)
+    def look_score(self, responses, detectors, *, headroom_db: float = math.inf) -> np.ndarray:
+        """The look score z of joint responses (``responses[d]`` per detector) at a place with
+        this headroom under the recording's full scale (:meth:`LookModel.score`)."""
+        return self.looks.score(responses, detectors, headroom_db=headroom_db)
 
     @property
     def prior_target(self) -> float:

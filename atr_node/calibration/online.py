@@ -168,6 +168,7 @@ class OnlineCalibrator:
         self.images: int | None = None
         """Images the on-line model was made from (tiles too small for a target are skipped)."""
         self.skipped = 0
+        self.clipped_db: float | None = None
         self.iterations: list[int] | None = None
         self.error: str | None = None
         self.waiting_since: float | None = None
@@ -408,6 +409,9 @@ class OnlineCalibrator:
                 self.iterations = ([int(min(done)), int(max(done)), int(model.provenance.get("iterations", max(done)))]
                                    if done else None)
                 self.skipped = len(model.provenance.get("skipped_images") or ())
+                looks = model.looks
+                self.clipped_db = (None if looks is None or looks.lrs_clipped is None
+                                   else float(looks.clip_headroom_db))
         if kind != "model":
             self.error = str(payload)
         self.close()
@@ -420,7 +424,8 @@ class OnlineCalibrator:
         state = "on-line" if self.switched_at is not None else "failed" if self.error else "pending"
         return {"state": state, "deterministic": self.deterministic, "fallback": self.fallback_name,
                 "offered": self._offered, "of": self.n_tiles, "images": self.images, "skipped": self.skipped,
-                "from_tile": self.switched_at, "error": self.error, "iterations": self.iterations}
+                "from_tile": self.switched_at, "error": self.error, "iterations": self.iterations,
+                "clipped_db": self.clipped_db}
 
     def close(self) -> None:
         """Stop the worker (idempotent)."""
@@ -490,6 +495,8 @@ def model_report(outcome: Mapping[str, Any] | None, *, tiles: int | None, fallba
         if it and it[1] < it[2]:  # [fewest, most, cap] iterations per image: every image converged early
             lo, hi, cap = it
             notes.append(f"converged after {lo if lo == hi else f'{lo}-{hi}'} of {cap} iterations per image")
+        if o.get("clipped_db") is not None:  # an 8-bit file's bright seabed (docs/fusion.md, "Clipped recordings")
+            notes.append(f"seabed within {o['clipped_db']:g} dB of full scale scored with its own likelihood ratios")
         images = f"{o['images']} of {o['of']} images" + (f" ({'; '.join(notes)})" if notes else "")
         t = int(o["from_tile"])
         if t <= 1:

@@ -13,6 +13,7 @@ per-range statistics so a crop scores as the whole image would (see :func:`colle
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 import logging
 import math
@@ -25,8 +26,9 @@ from .stats import dobeck_threshold, wilson_interval
 
 log = logging.getLogger(__name__)
 
-TRAITS: tuple[str, ...] = ("nominal", "reflectivity_db", "height_m")
-"""Per-target traits of the injected population that :func:`collect_image` records."""
+TRAITS: tuple[str, ...] = ("nominal", "reflectivity_db", "height_m", "headroom_db")
+"""Per-target traits that :func:`collect_image` records: of the injected population, and the
+headroom of the seabed where it lies (:func:`~atr_node.calibration.looks.headroom_db`)."""
 
 
 @dataclass(frozen=True)
@@ -37,7 +39,9 @@ class Responses:
     injected targets in injection order; ``nontarget[d]`` (k_d,) the clean cells. NaN = the
     detector did not cover it. ``target_traits`` holds per-target arrays (m,) of the injected
     population (:data:`TRAITS`: ``nominal`` as 0/1, ``reflectivity_db``, ``height_m`` above the
-    seabed); empty when not recorded.
+    seabed, ``headroom_db`` of the seabed there); empty when not recorded.
+    ``nontarget_headroom_db`` (k,): the headroom of each clean cell (its first column's), when
+    every detector has the same cells; None when not recorded.
     """
 
     detectors: tuple[str, ...]
@@ -47,6 +51,7 @@ class Responses:
     target_shape: tuple[str, ...] = ()
     provenance: Mapping[str, Any] = field(default_factory=dict)
     target_traits: Mapping[str, np.ndarray] = field(default_factory=dict)
+    nontarget_headroom_db: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         m = np.asarray(self.target_range_m).size
@@ -69,7 +74,7 @@ class Responses:
         n = max(0, int(n_targets))
         return Responses(self.detectors, {d: self.target[d][:n] for d in self.detectors}, dict(self.nontarget),
                          np.asarray(self.target_range_m)[:n], tuple(self.target_shape[:n]), dict(self.provenance),
-                         {k: np.asarray(v)[:n] for k, v in self.target_traits.items()})
+                         {k: np.asarray(v)[:n] for k, v in self.target_traits.items()}, self.nontarget_headroom_db)
 
     @property
     def nominal(self) -> np.ndarray:
@@ -97,12 +102,14 @@ class Responses:
         # A trait pools only when every part recorded it.
         keys = [k for k in parts[0].target_traits if all(k in p.target_traits for p in parts)]
         traits = {k: np.concatenate([np.asarray(p.target_traits[k], dtype=np.float64) for p in parts]) for k in keys}
+        heads = [p.nontarget_headroom_db for p in parts]
         return Responses(
             dets,
             {d: np.concatenate([np.asarray(p.target[d], dtype=np.float64) for p in parts]) for d in dets},
             {d: np.concatenate([np.asarray(p.nontarget[d], dtype=np.float64) for p in parts]) for d in dets},
             np.concatenate([np.asarray(p.target_range_m, dtype=np.float64) for p in parts]),
-            tuple(s for p in parts for s in p.target_shape), prov, traits)
+            tuple(s for p in parts for s in p.target_shape), prov, traits,
+            None if any(h is None for h in heads) else np.concatenate([np.asarray(h, dtype=np.float64) for h in heads]))
 
 
 # ----------------------------------------------------------------------------------------
@@ -177,6 +184,10 @@ class CalibrationImage:
     dx_m: float
     altitude_m: float
     name: str = "image"
+    full_scale: float | None = None
+    """The recording's saturation in intensity (:attr:`~atr_node.records.tile.Tile.saturation`):
+    injected pixels are clipped to it, as the sensor would have clipped the target's echo.
+    None: unknown (float data), nothing clipped."""
 
     @property
     def ranges_m(self) -> np.ndarray:
@@ -191,7 +202,7 @@ class CalibrationImage:
         alt = float(np.nanmean(tile.nav.altitude_m)) if tile.nav is not None else float(altitude_m)
         g = (tile.ground_range(None if tile.nav is not None else alt) if tile.slant else tile).as_intensity()
         return cls(np.ascontiguousarray(g.pixels, dtype=np.float32), float(g.range0_m), float(g.dr_m),
-                   float(g.dx_m), alt, name=tile.ident)
+                   float(g.dx_m), alt, name=tile.ident, full_scale=g.saturation)
 
 
 def _settings_provenance(settings: Any) -> dict[str, Any]:
@@ -311,6 +322,7 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
     from ..detectors.windows import window_geometry
     from ..simulation.inject import inject_targets
     from ..simulation.signature import background_curve
+    from .looks import headroom_db
 
     dets = tuple(settings.detectors.enabled if enabled is None else enabled)
     px = np.ascontiguousarray(image.pixels, dtype=np.float32)
@@ -323,6 +335,11 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
     nontarget = {d: cell_maxima(clean[d], length_px=geom.length_px, echo_px=geom.echo_px,
                                 shadow_px=geom.shadow_px) for d in dets}
     del clean
+    # the seabed's headroom under the recording's full scale, per column: a clean cell's is
+    # its first column's, an injected target's its anchor column's
+    head = headroom_db(image.full_scale, b)
+    edges = cell_edges(geom.shadow_px, geom.echo_px)
+    nontarget_head = np.tile(head[edges[:-1]], rows // max(1, geom.length_px))
     up, down, left, right = geom.reach()
     g = background_curve(px)  # the injector's gray-level curve g(r), once for all iterations
     target: dict[str, list[float]] = {d: [] for d in dets}
@@ -337,6 +354,8 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
         injected, placed = inject_targets(px, range0_m=image.range0_m, n_targets=targets_per_image, rng=rng,
                                           sensor=settings.sensor, simulation=settings.simulation,
                                           template=settings.template, g=g, population=population, **geo)
+        if image.full_scale is not None:  # the sensor clips the target's echo as it clips the seabed's
+            np.minimum(injected, np.float32(image.full_scale), out=injected)
         crops = []
         for t in placed:
             i, j = int(t.row), int(t.col)
@@ -368,6 +387,7 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
             traits["nominal"].append(float(t.nominal))
             traits["reflectivity_db"].append(float(t.reflectivity_db))
             traits["height_m"].append(float(t.height_m))
+            traits["headroom_db"].append(float(head[min(max(j, 0), cols - 1)]))
         done += 1
         if progress is not None:
             progress()
@@ -385,7 +405,7 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
             "n_cells": n_cells}
     return Responses(dets, {d: np.asarray(v, dtype=np.float64) for d, v in target.items()}, nontarget,
                      np.asarray(ranges, dtype=np.float64), tuple(shapes), prov,
-                     {k: np.asarray(v, dtype=np.float64) for k, v in traits.items()})
+                     {k: np.asarray(v, dtype=np.float64) for k, v in traits.items()}, nontarget_head)
 
 
 def _room_for_targets(image: CalibrationImage, settings: Any) -> bool:
@@ -449,8 +469,7 @@ def pool_parts(parts: Mapping[int, Responses], *, n_usable: int, skipped: Sequen
                  "targets_per_image": targets_per_image, "seed": seed, "skipped_images": list(skipped)})
     prov.update(_settings_provenance(settings))
     prov["population"]["n_nominal"] = int(out.nominal.sum())
-    return Responses(out.detectors, out.target, out.nontarget, out.target_range_m, out.target_shape, prov,
-                     out.target_traits)
+    return dataclasses.replace(out, provenance=prov)
 
 
 def collect_responses(images: Sequence[CalibrationImage], *, settings: Any, iterations: int,

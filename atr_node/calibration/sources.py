@@ -109,7 +109,9 @@ def image_from_picture(path: str | Path, *, pixel_m: float, range0_m: float, alt
     if a is None:
         raise AtrError(f"{path}: not a picture OpenCV can read")
     px = (a.astype(np.float32) / 255.0) ** 2
-    return CalibrationImage(px, float(range0_m), float(pixel_m), float(pixel_m), float(altitude_m), name=Path(path).name)
+    # white (255) is as bright as the picture goes: an injected echo clips there, intensity 1
+    return CalibrationImage(px, float(range0_m), float(pixel_m), float(pixel_m), float(altitude_m), name=Path(path).name,
+                            full_scale=1.0)
 
 
 def images_from_paths(paths: Sequence[str | Path], *, settings: Any, max_images: int, pixel_m: float | None,

@@ -63,6 +63,11 @@ class Detection:
     patch: int = 0
     """Textured patch of its unit the anchor lies in (:mod:`.objects`: a patch gives one look,
     at its strongest place), numbered from 1 per unit; 0 none."""
+    headroom_db: float = math.inf
+    """How far the seabed's mean intensity at the anchor's range lies below the recording's full
+    scale, dB (:func:`~atr_node.calibration.looks.headroom_db`; inf: unknown or float data):
+    where it is small the recording clips a target's echo, and the look is scored with the
+    clipped places' likelihood ratios (SPEC 6.1, docs/fusion.md); set with ``joint``."""
 
 
 def find_detections(score: np.ndarray, tau: float, *, detector: str, range0_m: float, dr_m: float,

@@ -39,6 +39,9 @@ class DetectJob:
     detectors: DetectorSettings
     sweep: dict[str, tuple[float, ...]] | None = None
     """Evaluation only: further thresholds per detector at which to extract detections too."""
+    full_scale: float | None = None
+    """The recording's clip level in intensity (:attr:`~atr_node.records.tile.Tile.saturation`):
+    with ``background``, each detection's headroom; None: unknown."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -125,6 +128,7 @@ def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: Detec
         return found
     import dataclasses
 
+    from ..calibration.looks import headroom_db
     from ..calibration.responses import window_max
     from ..detectors.windows import window_geometry
 
@@ -134,14 +138,15 @@ def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: Detec
         ranges = job.range0_m + job.dr_m * np.arange(cols, dtype=np.float64)
         cache["geometry"] = window_geometry(ranges, template=job.template, dr_m=job.dr_m, dx_m=job.dx_m,
                                             altitude_m=job.altitude_m)
-    geom = cache["geometry"]
+        cache["headroom"] = headroom_db(job.full_scale, job.background)
+    geom, head = cache["geometry"], cache["headroom"]
     out = []
     for x in found:
         key = (int(x.row), int(x.col), x.length_m)
-        if key in cache:
-            out.append(dataclasses.replace(x, joint=cache[key]))
-            continue
         j = min(max(int(x.col), 0), cols - 1)
+        if key in cache:
+            out.append(dataclasses.replace(x, joint=cache[key], headroom_db=float(head[j])))
+            continue
         if x.length_m is not None:
             # an extended object (a wreck): its anchor is the object's centre, where the
             # detectors need not respond; each detector's response is its maximum over the
@@ -155,7 +160,7 @@ def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: Detec
                                          length_px=geom.length_px, echo_px=geom.echo_px,
                                          shadow_px=int(geom.shadow_px[j]))) for d in job.enabled)
         cache[key] = joint
-        out.append(dataclasses.replace(x, joint=joint))
+        out.append(dataclasses.replace(x, joint=joint, headroom_db=float(head[j])))
     return out
 
 

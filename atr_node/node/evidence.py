@@ -91,7 +91,8 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
         for d in enabled:
             for x in detections[d]:
                 joint = dict(x.joint) if x.joint is not None else {d: x.gamma}
-                scored.append((d, x, float(model.look_score({k: np.float64(v) for k, v in joint.items()}, enabled))))
+                scored.append((d, x, float(model.look_score({k: np.float64(v) for k, v in joint.items()}, enabled,
+                                                            headroom_db=x.headroom_db))))
         keep = _one_per_patch([x for _, x, _ in scored], [z for _, _, z in scored])
         for (d, x, z), k in zip(scored, keep):
             if not k:

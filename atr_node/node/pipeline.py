@@ -606,7 +606,7 @@ class Pipeline:
             self.stats.units_degraded += 1
         job = DetectJob(self.stats.units, unit.pixels, (unit.core.start, unit.core.stop), unit.range0_m, unit.dr_m,
                         unit.dx_m, float(np.median(unit.nav.altitude_m)), background, median, taus, self.enabled,
-                        self.settings.template, det_settings, self.sweep)
+                        self.settings.template, det_settings, self.sweep, unit.full_scale)
         self.stats.units += 1
         self.stats.pixels += unit.core_rows * unit.pixels.shape[1]
         self._timing[id(unit)] = timing

@@ -321,6 +321,8 @@ def _node_arrays(p: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     # replay: tiles held for the on-line calibration (with their nav; float32 keeps NaN pixels)
     cal_held = getattr(p, "_cal_held", [])
     meta["cal_held"] = len(cal_held)
+    # the wire map has no full scale: it is kept beside (an 8-bit file's, squared)
+    meta["cal_held_full_scale"] = [t.saturation for t in cal_held]
     for i, tile in enumerate(cal_held):
         arrays[f"cal_held_{i}"] = np.frombuffer(tile.replace(wire_dtype="float32").pack(), dtype=np.uint8)
     for i, ((leg, side), (bg, med)) in enumerate(p._bg.items()):
@@ -371,7 +373,10 @@ def _restore_node(p: Any, a: dict[str, np.ndarray], meta: dict[str, Any]) -> Non
     p.merger._band_by_side = {str(k): float(v) for k, v in meta.get("band_by_side", {}).items()}
     for i in range(int(meta.get("held", 0))):
         p.merger._held.append(Tile.unpack(a[f"held_{i}"].tobytes()))
-    p.hold_for_calibration([Tile.unpack(a[f"cal_held_{i}"].tobytes()) for i in range(int(meta.get("cal_held", 0)))])
+    n_held = int(meta.get("cal_held", 0))
+    scales = meta.get("cal_held_full_scale") or [None] * n_held
+    p.hold_for_calibration([Tile.unpack(a[f"cal_held_{i}"].tobytes()).replace(
+        full_scale=None if scales[i] is None else float(scales[i])) for i in range(n_held)])
 
     p._bg = {}
     f = p.settings.detectors.background_memory_m

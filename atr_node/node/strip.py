@@ -78,6 +78,9 @@ class StripUnit:
     closes_leg: bool = False
     """The last unit of a leg's strips (set by the node when a tile of another leg arrives):
     the leg's evidence is complete once it is fused."""
+    full_scale: float | None = None
+    """The recording's clip level (:attr:`~atr_node.records.tile.Tile.saturation` of the strip's
+    tiles, in ``kind``); None: unknown."""
 
     @property
     def core_rows(self) -> int:
@@ -86,7 +89,8 @@ class StripUnit:
     def core_tile(self) -> Tile:
         """The core as a ground-range tile (for georeferencing)."""
         return Tile(self.mission, self.leg, self.side, self.seq, self.pixels[self.core], self.kind, self.range0_m,
-                    self.dr_m, self.dx_m, False, self.ping_time[self.core], nav=self.nav.slice(self.core))
+                    self.dr_m, self.dx_m, False, self.ping_time[self.core], nav=self.nav.slice(self.core),
+                    full_scale=self.full_scale)
 
 
 class _Rows:
@@ -184,6 +188,8 @@ class _LegState:
     and median m(j) a strip starts from are not made of a few metres of seabed."""
     units: int = 0
     """Units emitted from this strip so far."""
+    full_scale: float | None = None
+    """The largest saturation of the strip's tiles (None: unknown)."""
 
 
 def _nav_array(tile: Tile) -> np.ndarray:
@@ -270,6 +276,9 @@ class StripAssembler:
             self._legs[tile.side] = st
         elif tile.seq <= st.last_seq:
             self.seq_repeats += 1
+        sat = tile.saturation
+        if sat is not None:
+            st.full_scale = sat if st.full_scale is None else max(st.full_scale, sat)
         px = self._on_axis(tile, st)
         n, self._next = self._next, self._next + 1
         st.seqs[n] = tile.seq
@@ -361,7 +370,8 @@ class StripAssembler:
         unit = StripUnit(st.mission, st.leg, st.side, st.last_seq, rows.px, rows.t,
                          TileNav(nav[:, 0].copy(), nav[:, 1].copy(), nav[:, 2].copy(), nav[:, 3].copy()), core,
                          st.range0_m, st.dr_m, st.dx_m, st.kind, tuple(st.seqs.get(n, n) for n in in_core),
-                         tuple(st.seqs.get(n, n) for n in done if n not in self._uncounted), lookahead)
+                         tuple(st.seqs.get(n, n) for n in done if n not in self._uncounted), lookahead,
+                         full_scale=st.full_scale)
         for n in done:  # no row of theirs is pending any more
             st.seqs.pop(n, None)
             self._uncounted.discard(n)
@@ -380,7 +390,7 @@ class StripAssembler:
         for side, st in self._legs.items():
             out[side] = {k: getattr(st, k) for k in ("mission", "leg", "side", "range0_m", "dr_m", "dx_m", "kind",
                                                       "cols", "last_seq", "last_time", "m", "k", "k0",
-                                                      "units")}
+                                                      "units", "full_scale")}
             out[side]["seqs"] = [[n, s] for n, s in st.seqs.items()]  # JSON: no int keys
             out[side]["next"] = self._next
             for name in ("context", "pending"):
@@ -402,6 +412,7 @@ class StripAssembler:
                                          int(d["last_seq"]), float(d["last_time"]), int(d.get("m", self.m)),
                                          None if d.get("k") is None else int(d["k"]), rows["context"],
                                          rows["pending"], seqs, None if d.get("k0") is None else int(d["k0"]),
-                                         int(d.get("units", 1)))
+                                         int(d.get("units", 1)),
+                                         None if d.get("full_scale") is None else float(d["full_scale"]))
             srcs = [int(rows[k].src.max()) + 1 for k in ("context", "pending") if len(rows[k])]
             self._next = max([self._next, int(d.get("next", 0)), *srcs])

@@ -115,6 +115,10 @@ class Tile:
     sensor: SensorInfo | None = None
     wire_dtype: str = "float32"
     """dtype of ``data`` on the wire; :meth:`to_map` writes it back in this dtype."""
+    full_scale: float | None = None
+    """The largest value the sensor records, in this tile's ``kind``: where the echo is
+    stronger, the pixel is clipped to it. None: the integer wire dtype's largest value
+    (:attr:`saturation`); a float tile's is unknown. :meth:`as_intensity` sets it."""
 
     # -- axes ---------------------------------------------------------------------------
     @property
@@ -146,13 +150,27 @@ class Tile:
     def replace(self, **changes: Any) -> "Tile":
         return dataclasses.replace(self, **changes)
 
+    @property
+    def saturation(self) -> float | None:
+        """The level at which this tile's pixels clip (:attr:`full_scale`, in its ``kind``): the
+        one given, else an integer wire dtype's largest value (255 for uint8 samples), else None
+        (a float tile: unknown)."""
+        if self.full_scale is not None:
+            return float(self.full_scale)
+        dt = WIRE_DTYPES[self.wire_dtype]
+        return float(np.iinfo(dt).max) if dt.kind in "ui" else None
+
     def as_intensity(self) -> "Tile":
         """This tile in linear intensity, the quantity the detectors' formulas and levels are
         written for (SPEC sections 0 and 2: a shadow at 0.3 of the median, lacunarity's
-        ``var / mean^2``): itself when it is, else its pixels squared (float32; NaN stays NaN)."""
+        ``var / mean^2``): itself when it is, else its pixels squared (float32; NaN stays NaN),
+        its :attr:`saturation` squared with them (an 8-bit sample clips at 255, so its
+        intensity at 255^2)."""
         if self.kind == "intensity":
             return self
-        return self.replace(pixels=np.square(self.pixels, dtype=np.float32), kind="intensity", wire_dtype="float32")
+        sat = self.saturation
+        return self.replace(pixels=np.square(self.pixels, dtype=np.float32), kind="intensity", wire_dtype="float32",
+                            full_scale=None if sat is None else sat * sat)
 
     def equals(self, other: "Tile") -> bool:
         """Exact equality of every field and pixel (NaN equal to NaN)."""
@@ -277,7 +295,8 @@ class Tile:
         out[~inside] = np.nan
         if first_return_band_m > 0:
             out[slant_r < alt[:, None] + first_return_band_m] = np.nan
-        return self.replace(pixels=out, range0_m=float(g0), slant=False, wire_dtype="float32")
+        return self.replace(pixels=out, range0_m=float(g0), slant=False, wire_dtype="float32",
+                            full_scale=self.saturation)
 
 
 def tile_ident(mission: Any, side: Any, seq: Any) -> str:

@@ -220,3 +220,36 @@ def test_a_look_table_of_an_unknown_source_keeps_its_threshold(frame, model_z):
     b_future, _ = bel(frame, future, _strong_then_weak(model_z), "look")
     b_miss, _ = bel(frame, model_z, STRONG_THEN_MISS, "look")
     assert b_future == pytest.approx(b_miss, rel=1e-12)
+
+
+def test_a_look_on_clipped_seabed_is_scored_with_the_clipped_tables(frame):
+    """A model whose clipped places have their own likelihood ratios (an 8-bit file's bright
+    seabed, docs/fusion.md): the node scores a detection with the table of its headroom, and
+    the look's T mass is the look table's c(z) of that score."""
+    rng = np.random.default_rng(11)
+    m, k = 2000, 20000
+    c_t, c_n = rng.random(m) < 0.5, rng.random(k) < 0.5
+    target = {d: rng.normal(size=m) + np.where(c_t & (d != "smf"), 1.0, 3.0) for d in DETS}
+    resp = Responses(DETS, target, {d: rng.normal(size=k) for d in DETS}, rng.uniform(10.0, 60.0, m),
+                     ("cylinder",) * m, {"cell_area_m2": 5.0}, {"headroom_db": np.where(c_t, 5.0, 30.0)},
+                     np.where(c_n, 5.0, 30.0))
+    mod = estimate_model(resp, calibration=CalibrationSettings(prior="fixed", prior_target=0.01, look_pd=0.0,
+                                                               look_z_min=-math.inf),
+                         thresholds=ThresholdSettings())
+    assert mod.looks.lrs_clipped is not None
+    g = track_geometry(frame, east0_m=0.0, north0_m=0.0, heading_deg=0.0, rows=400, cols=500, leg=1)
+    row, col = pixel_of(g, *POINT)
+    gam = {"mf": 1.5, "lac": 1.5, "z": 1.5, "smf": 1.5}  # closed-form l: 1 each clipped, 0 free
+    joint = tuple((d, gam[d]) for d in DETS)
+    cov = np.ones((400, 500), bool)
+    layers = evidence_layers("look", mod, DETS)
+    conf = {}
+    for head in (6.0, 25.0):
+        dets = {d: [Detection(d, row, col, gam[d], float(g.ranges_m[col]), 0.6, 2.0, 50, joint=joint,
+                              headroom_db=head)] if gam[d] > mod.tau[d] else [] for d in DETS}
+        (obs,) = unit_observations(mod, dets, lambda d: cov, g.ranges_m, DETS, layers)
+        assert obs.detections
+        conf[head] = [r.confidence for r in obs.detections]
+        z = float(mod.look_score({d: np.float64(v) for d, v in gam.items()}, DETS, headroom_db=head))
+        assert conf[head] == pytest.approx([float(mod.look(DETS).confidence_at(z))] * len(conf[head]), rel=1e-12)
+    assert min(conf[6.0]) > max(conf[25.0])

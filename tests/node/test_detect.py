@@ -105,3 +105,20 @@ def test_same_job_same_result(job):
     for d in DETECTOR_NAMES:
         assert np.array_equal(a.covered_bits[d], b.covered_bits[d])
         assert a.detections[d] == b.detections[d]
+
+
+def test_each_detection_carries_the_headroom_of_its_range(job):
+    """With the recording's full scale, a detection's headroom is 10 log10(full scale / b(j)) at its
+    anchor column (a direct float64 computation); without one (float data), inf."""
+    fs = float(np.nanmax(job.pixels)) * 2.0
+    res = detect(dataclasses.replace(job, full_scale=fs))
+    plain = detect(job)
+    b = np.asarray(job.background, dtype=np.float64)
+    n = 0
+    for d in DETECTOR_NAMES:
+        assert [dataclasses.replace(x, headroom_db=math.inf) for x in res.detections[d]] == plain.detections[d]
+        for x in res.detections[d]:
+            assert x.headroom_db == pytest.approx(10.0 * math.log10(fs / b[x.col]), abs=1e-9)
+            n += 1
+        assert all(math.isinf(x.headroom_db) for x in plain.detections[d])
+    assert n > 0
