@@ -189,7 +189,7 @@ class _LegState:
     units: int = 0
     """Units emitted from this strip so far."""
     full_scale: float | None = None
-    """The largest saturation of the strip's tiles (None: unknown)."""
+    """The lowest saturation of the strip's tiles (None: unknown)."""
 
 
 def _nav_array(tile: Tile) -> np.ndarray:
@@ -278,7 +278,9 @@ class StripAssembler:
             self.seq_repeats += 1
         sat = tile.saturation
         if sat is not None:
-            st.full_scale = sat if st.full_scale is None else max(st.full_scale, sat)
+            # the lowest: a tile whose samples never reached the recorder's clip level says
+            # only its word's range (Tile.saturation), the others where it clips
+            st.full_scale = sat if st.full_scale is None else min(st.full_scale, sat)
         px = self._on_axis(tile, st)
         n, self._next = self._next, self._next + 1
         st.seqs[n] = tile.seq

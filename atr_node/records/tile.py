@@ -47,6 +47,13 @@ NAV_KEYS = ("lat_deg", "lon_deg", "heading_deg", "altitude_m")
 SENSOR_KEYS = ("frequency_hz", "bandwidth_hz", "tx_length_m", "rx_length_m", "n_rx", "sas")
 REQUIRED_KEYS = ("type", "v", "mission", "leg", "side", "seq", "shape", "dtype", "data", "kind",
                  "range0_m", "dr_m", "dx_m", "slant", "ping_time")
+CLIP_MIN_PIXELS = 8
+"""Fewest samples at an integer tile's largest value for it to be the recorder's clip level
+(:attr:`Tile.clip_level`)."""
+CLIP_MIN_SHARE = 1e-3
+"""... and at least this share of the tile's valid samples (the shared files: 0.6-16 %)."""
+CLIP_BAND = 0.02
+"""... and more of them than in the levels within this fraction below it."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,12 +160,38 @@ class Tile:
     @property
     def saturation(self) -> float | None:
         """The level at which this tile's pixels clip (:attr:`full_scale`, in its ``kind``): the
-        one given, else an integer wire dtype's largest value (255 for uint8 samples), else None
-        (a float tile: unknown)."""
+        one given, else for integer samples the level where they pile up (:attr:`clip_level`: a
+        recorder may clip below its word's range, the Iver2 file's 16-bit samples at 32767),
+        else the integer wire dtype's largest value (255 for uint8 samples: clipping there
+        cannot be ruled out), else None (a float tile: unknown)."""
         if self.full_scale is not None:
             return float(self.full_scale)
         dt = WIRE_DTYPES[self.wire_dtype]
-        return float(np.iinfo(dt).max) if dt.kind in "ui" else None
+        if dt.kind not in "ui":
+            return None
+        seen = self.clip_level
+        return float(np.iinfo(dt).max) if seen is None else seen
+
+    @property
+    def clip_level(self) -> float | None:
+        """Where an integer tile's samples pile up at their largest value: that value, when it
+        holds at least :data:`CLIP_MIN_PIXELS` samples and :data:`CLIP_MIN_SHARE` of the valid
+        ones, and more samples than the 2 % of levels below it together (a clipped tail lands
+        on one level; an unclipped one thins out towards its largest sample), and no more than
+        half of them (a constant tile is not a clipped tail). None: no pile-up (or float
+        samples)."""
+        if WIRE_DTYPES[self.wire_dtype].kind not in "ui":
+            return None
+        v = self.pixels[np.isfinite(self.pixels)]
+        if v.size == 0:
+            return None
+        top = float(v.max())
+        at = int(np.count_nonzero(v == top))
+        below = int(np.count_nonzero((v >= top * (1.0 - CLIP_BAND)) & (v < top)))
+        # at most half of them: a constant or blank tile is not a clipped tail
+        if max(CLIP_MIN_PIXELS, CLIP_MIN_SHARE * v.size) <= at <= 0.5 * v.size and at > below:
+            return top
+        return None
 
     def as_intensity(self) -> "Tile":
         """This tile in linear intensity, the quantity the detectors' formulas and levels are

@@ -19,7 +19,7 @@ from atr_node.config import CalibrationSettings, Settings, ThresholdSettings, lo
 from atr_node.detectors.background import column_mean
 from atr_node.detectors.windows import window_geometry
 from atr_node.errors import ConfigError, ModelFileError
-from atr_node.records.tile import Tile
+from atr_node.records.tile import Tile, TileNav
 
 DETS = ("mf", "lac", "smf", "z")
 
@@ -55,6 +55,52 @@ def test_a_given_full_scale_wins_and_ground_range_keeps_it():
     g = slant.ground_range(2.0)
     assert not g.slant and g.wire_dtype == "float32" and g.saturation == 255.0
     assert g.as_intensity().saturation == 255.0 ** 2
+
+
+@pytest.mark.parametrize("wire, top, clip", [("uint16", 32767.0, True), ("uint8", 255.0, True),
+                                              ("uint16", 32767.0, False), ("uint8", 200.0, False)])
+def test_the_clip_level_is_where_integer_samples_pile_up(wire, top, clip):
+    """A recorder that clips below its word's range (the Iver2 file's 16-bit samples stop at
+    32767): the level where the samples pile up is the saturation. Unclipped speckle thins out
+    towards its largest sample, so the word's largest value stays the (conservative) one."""
+    rng = np.random.default_rng(5)
+    a = rng.rayleigh(top * (0.3 if clip else 0.12), size=(200, 300))
+    px = np.maximum(np.round(np.minimum(a, top)), 1.0).astype(np.float32)
+    px[:5] = np.nan  # dropped pings
+    t = _tile(px, wire=wire)
+    full = float(np.iinfo(np.uint16 if wire == "uint16" else np.uint8).max)
+    if clip:
+        assert t.clip_level == top and t.saturation == top
+        assert t.as_intensity().saturation == top * top
+    else:
+        assert t.clip_level is None and t.saturation == full
+    assert _tile(px, wire="float32").clip_level is None
+
+
+def test_the_iver2_file_clips_at_32767(real_data):
+    from atr_node.node.service import open_recording
+
+    tiles = [Tile.from_map(r.msg) for r in open_recording(real_data / "xtf" / "scotsman-iver2.xtf")
+             if r.link == "sonar"]
+    assert tiles and all(t.wire_dtype == "uint16" and t.saturation == 32767.0 for t in tiles)
+
+
+def test_a_strip_keeps_the_lowest_clip_level_of_its_tiles():
+    """A strip's full scale is the recorder's: a tile that never reached it (no pile-up, so only its
+    word's range) does not raise the level the other tiles showed."""
+    from atr_node.node.strip import StripAssembler
+
+    rng = np.random.default_rng(2)
+    clipped = np.maximum(np.round(np.minimum(rng.rayleigh(12000.0, size=(64, 300)), 32767.0)), 1.0)
+    dark = np.maximum(np.round(rng.rayleigh(2000.0, size=(64, 300))), 1.0)
+    asm = StripAssembler(4)
+    for seq, px in enumerate((clipped, dark)):
+        t = Tile("m", 0, "port", seq, px.astype(np.float32), "amplitude", 10.0, 0.1, 0.1, False,
+                 seq * 64 + np.arange(64, dtype=np.float64), wire_dtype="uint16",
+                 nav=TileNav(np.full(64, 42.0), np.full(64, -70.0) + 1e-6 * (seq * 64 + np.arange(64)),
+                             np.zeros(64), np.full(64, 8.0)))
+        asm.push(t.as_intensity())
+    assert asm._legs["port"].full_scale == 32767.0 ** 2
 
 
 # -- headroom ------------------------------------------------------------------------------------
