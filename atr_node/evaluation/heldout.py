@@ -121,6 +121,12 @@ class Variant:
     nav_scale: float = 1.0
     """Times the base scenes' nav errors (per-leg offset 0.4-0.6 m, drift 0.1-0.3 m per 100 m,
     wander 0.05-0.15 m): 4 is a poorer INS, offsets of 1.6-2.4 m."""
+    byte_headroom_db: tuple[float, float] | None = None
+    """An 8-bit recorder (:func:`to_byte_amplitude`): the tiles are amplitude in uint8, the gain
+    set so that a flat seabed's mean intensity at full gain (``LEVEL``) lies this many dB under
+    full scale (255), drawn per scene, uniform in the range; brighter echoes clip at 255, as
+    an operator's gain for a mid-grey seabed makes a real side-scan file do. None: float
+    intensity (the base scenes)."""
 
     @property
     def tile_pings(self) -> int:
@@ -142,11 +148,13 @@ VARIANTS = {v.name: v for v in (
     Variant("clumpy", texture_m=1.0, speckle_px=0.8),
     Variant("high", altitude_m=15.0, max_range_m=100.0),
     Variant("low", altitude_m=4.0, max_range_m=40.0),
+    Variant("byte", byte_headroom_db=(4.0, 10.0)),
 )}
 """Stress variants of the held-out scenes (``--variant``): finer and coarser pixels, a real
 side-scan's pixels (fine in range, coarse along track), clumpy seabed statistics (correlated
 texture, oversampled speckle), spiky clutter (K shape 0.7-1.5), a higher and a lower survey, a
-poorer INS (per-leg nav offsets of about 2 m)."""
+poorer INS (per-leg nav offsets of about 2 m), an 8-bit recorder that clips (amplitude in
+uint8, the seabed 4-10 dB under full scale)."""
 
 
 @dataclass(frozen=True)
@@ -600,6 +608,15 @@ def _render_side(leg: _Leg, side: str, rows: np.ndarray, objects: list[_Object],
     return px.astype(np.float32)
 
 
+def to_byte_amplitude(px: np.ndarray, full_scale: float) -> np.ndarray:
+    """Intensity ``px`` as an 8-bit recorder stores it: amplitude ``sqrt(px / full_scale)`` on
+    0-255, rounded, clipped at 255 (full scale) and raised to 1 (0 means no data on the wire);
+    NaN (no data) stays NaN. Float32 pixels holding the integers the ``uint8`` wire sends."""
+    with np.errstate(invalid="ignore"):
+        a = np.rint(255.0 * np.sqrt(np.asarray(px, dtype=np.float64) / float(full_scale)))
+    return np.where(np.isnan(a), np.nan, np.clip(a, 1.0, 255.0)).astype(np.float32)
+
+
 # ----------------------------------------------------------------------------------------
 # The scene
 
@@ -666,6 +683,11 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
     if variant not in VARIANTS:
         raise ValueError(f"variant must be one of {', '.join(VARIANTS)}, got {variant!r}")
     v = VARIANTS[variant]
+    # an 8-bit recorder's full scale (intensity), from draws of its own: the scene's other
+    # draws, and so its seabed, objects and speckle, stay those of the base scene
+    byte_db = (None if v.byte_headroom_db is None else
+               float(np.random.default_rng(np.random.SeedSequence([int(seed), SEABEDS.index(seabed), 23]))
+                     .uniform(*v.byte_headroom_db)))
     tex_dir = Path(textures_dir) if textures_dir is not None else default_textures_dir()
     rng = _rng(seed, seabed)
     lines = _make_legs(rng, int(legs), float(leg_length_m), v)
@@ -718,9 +740,14 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
                         for j, side in enumerate(("port", "stbd")):
                             px = _render_side(lg, side, rows, shown, bed, alt, nu, nu_field, rng, v)
                             px[lost] = np.nan
-                            tile = Tile(mission=name, leg=lg.index, side=side, seq=seq[side], pixels=px, kind="intensity",
+                            if byte_db is None:
+                                kind, wire = "intensity", "float32"
+                            else:
+                                px = to_byte_amplitude(px, LEVEL * 10.0 ** (byte_db / 10.0))
+                                kind, wire = "amplitude", "uint8"
+                            tile = Tile(mission=name, leg=lg.index, side=side, seq=seq[side], pixels=px, kind=kind,
                                         range0_m=0.0, dr_m=v.dr_m, dx_m=v.dx_m, slant=False, ping_time=t, nav=nav,
-                                        sensor=SENSOR)
+                                        sensor=SENSOR, wire_dtype=wire)
                             seq[side] += 1
                             writer.write(float(t[-1]) + TILE_LATENCY_S + 0.01 * j, "sonar", tile.to_map())
                         done += 1
@@ -762,6 +789,10 @@ def generate_scene(out_dir: str | os.PathLike[str], *, seabed: str, seed: int, l
             }
             if v.name != "base":  # the base scenes' scene.json stays as it was
                 scene["variant"] = v.info()
+            if byte_db is not None:
+                scene["recorder"] = {"samples": "amplitude, uint8, 0 = no data", "headroom_db": _r(byte_db),
+                                     "full_scale_intensity": _r(LEVEL * 10.0 ** (byte_db / 10.0)),
+                                     "rule": "round(255 sqrt(I / full_scale)), clipped to 1-255"}
             tmp[scene_json].write_text(json.dumps(scene, indent=1, sort_keys=True) + "\n")
             scene_json.unlink(missing_ok=True)  # an older scene there: never half old, half new
     except BaseException:

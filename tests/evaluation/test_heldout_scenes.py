@@ -306,6 +306,32 @@ def test_variants_change_the_survey_and_leave_the_base_scene_alone(sand, tmp_pat
         generate_scene(tmp_path / "x", seabed="sand", seed=7, variant="blurry", **SMALL)
 
 
+def test_the_byte_variant_is_the_base_scene_as_an_8_bit_recorder_stores_it(sand, tmp_path):
+    """An 8-bit recorder: the same scene (same draws) in uint8 amplitude, round(255 sqrt(I / F)),
+    clipped at 255, with the full scale F the scene states; dropped pings and the nadir gap stay
+    no-data. Checked against the base scene's float intensity, pixel by pixel."""
+    b = generate_scene(tmp_path / "byte", seabed="sand", seed=7, variant="byte", **SMALL)
+    rec = json.loads(b.scene_json.read_text())["recorder"]
+    assert 4.0 <= rec["headroom_db"] <= 10.0
+    fs = rec["full_scale_intensity"]
+    assert fs == pytest.approx(heldout.LEVEL * 10.0 ** (rec["headroom_db"] / 10.0), rel=1e-6)
+    base, byte = _tiles(sand), _tiles(tmp_path / "byte")
+    assert len(base) == len(byte)
+    clipped = total = 0
+    for t0, t1 in zip(base, byte):
+        assert (t1.kind, t1.wire_dtype, t0.kind, t0.wire_dtype) == ("amplitude", "uint8", "intensity", "float32")
+        assert t1.saturation == 255.0 or t1.clip_level is None
+        np.testing.assert_array_equal(np.isnan(t0.pixels), np.isnan(t1.pixels))
+        ok = np.isfinite(t0.pixels)
+        want = np.clip(np.rint(255.0 * np.sqrt(t0.pixels[ok].astype(np.float64) / fs)), 1.0, 255.0)
+        np.testing.assert_array_equal(t1.pixels[ok], want)
+        clipped += int(np.count_nonzero(t1.pixels[ok] == 255.0))
+        total += int(ok.sum())
+    # a recorder set 4-10 dB over the seabed does clip: echoes and the speckle's brightest
+    assert 1e-3 < clipped / total < 0.2
+    assert _rows(tmp_path / "byte" / "truth.csv") == _rows(sand / "truth.csv")
+
+
 def test_a_flat_patch_of_a_scene_is_k_distributed(tmp_path):
     out = tmp_path / "s"
     sc = generate_scene(out, seabed="sand", seed=4, legs=2, leg_length_m=120.0)
