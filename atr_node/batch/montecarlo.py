@@ -9,7 +9,6 @@ whatever the number of workers, and the model estimated from them is the same.
 from __future__ import annotations
 
 import dataclasses
-
 from typing import Any, Sequence
 
 
