@@ -18,7 +18,6 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +29,8 @@ from atr_node.config import CalibrationSettings, load_settings
 from atr_node.io.atrlog import AtrLogWriter, read_atrlog
 from atr_node.node import state as node_state
 from atr_node.node.pipeline import Pipeline
+
+from ..waiting import WAIT_S, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -77,7 +78,8 @@ def replay_cmd(log: Path, conf: Path, out: Path, *extra: str) -> list[str]:
 def run_replay(log: Path, conf: Path, out: Path, *extra: str) -> tuple[bytes, dict, str]:
     """(contacts file bytes, summary, stderr) of one ``atr-node replay``."""
     out.mkdir(parents=True, exist_ok=True)
-    p = subprocess.run(replay_cmd(log, conf, out, *extra), capture_output=True, text=True, cwd=REPO, timeout=300)
+    p = subprocess.run(replay_cmd(log, conf, out, *extra), capture_output=True, text=True, cwd=REPO,
+                       timeout=5 * WAIT_S)  # a whole replay: a hang guard
     assert p.returncode == 0, p.stderr[-3000:]
     return (out / "contacts.jsonl").read_bytes(), json.loads((out / "summary.json").read_text()), p.stderr
 
@@ -227,7 +229,7 @@ def test_ctrl_c_while_waiting_for_the_model_exits_at_once_and_the_resume_loses_n
                 break
         rest = proc.stderr.read()
         # a guard against a hang (the calibration alone would take minutes), not a timing test
-        assert proc.wait(timeout=120) == 130, "".join(lines) + rest
+        assert proc.wait(timeout=WAIT_S) == 130, "".join(lines) + rest
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -253,9 +255,7 @@ def test_live_keeps_the_given_model_until_the_worker_delivers_and_logs_the_switc
         # a live node never waits: the test waits, between records, for the worker to answer,
         # so that the switch happens within the recording
         if pipe.online.offered == 2 and not pipe.online.done:
-            deadline = time.monotonic() + 120.0
-            while not pipe.online.ready() and time.monotonic() < deadline:
-                time.sleep(0.05)
+            assert wait_until(pipe.online.ready)  # WAIT_S: a hang guard, never a timing assertion
 
     with caplog.at_level(logging.INFO, logger="atr_node.calibration.online"):
         pipe, fused = _pipeline_run(settings, list(read_atrlog(log)), online=True, mode="live", workers=0,

@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -15,6 +14,8 @@ from atr_node.config import FusionSettings
 from atr_node.errors import FusionError
 from atr_node.fusion import ContactTracker, EvidenceGrid
 from atr_node.fusion import snapshot
+
+from ..waiting import wait_until
 
 from .conftest import mission_observations
 
@@ -102,9 +103,8 @@ def test_a_crash_during_a_write_leaves_the_previous_snapshot_intact(tmp_path):
     try:
         assert child.stdout.readline().strip() == "ready"
         tmp = tmp_path / f".grid.npz.tmp-{child.pid}"
-        deadline = time.monotonic() + 60
-        while not tmp.exists() and child.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.001)
+        # either outcome is checked below: the wait only picks the moment, WAIT_S guards a hang
+        wait_until(lambda: tmp.exists() or child.poll() is not None, poll_s=0.001)
         os.kill(child.pid, signal.SIGKILL)  # power cut in the middle of the write
     finally:
         child.wait()
