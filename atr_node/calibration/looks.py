@@ -323,10 +323,13 @@ def looks_to_dict(looks: LookModel, detector_dict) -> dict[str, Any]:
                       for d, t in looks.tails.items()},
             "tables": {k: detector_dict(p) for k, p in looks.tables.items()},
             **({} if looks.lrs is None else
-               {"lr": {d: {"gamma": t.gamma.tolist(), "l": t.l.tolist()} for d, t in looks.lrs.items()}}),
+               {"lr": _lr_dict(looks.lrs)}),
             **({} if looks.lrs_clipped is None else
-               {"lr_clipped": {d: {"gamma": t.gamma.tolist(), "l": t.l.tolist()} for d, t in looks.lrs_clipped.items()},
-                "clip_headroom_db": float(looks.clip_headroom_db)})}
+               {"lr_clipped": _lr_dict(looks.lrs_clipped), "clip_headroom_db": float(looks.clip_headroom_db)})}
+
+
+def _lr_dict(lrs: Mapping[str, LrTable]) -> dict[str, Any]:
+    return {d: {"gamma": t.gamma.tolist(), "l": t.l.tolist()} for d, t in lrs.items()}
 
 
 def _knots(t: Any, name: str) -> tuple[np.ndarray, np.ndarray, bool]:

@@ -124,8 +124,9 @@ class Tile:
     """dtype of ``data`` on the wire; :meth:`to_map` writes it back in this dtype."""
     full_scale: float | None = None
     """The largest value the sensor records, in this tile's ``kind``: where the echo is
-    stronger, the pixel is clipped to it. None: the integer wire dtype's largest value
-    (:attr:`saturation`); a float tile's is unknown. :meth:`as_intensity` sets it."""
+    stronger, the pixel is clipped to it. None: read off the samples when asked
+    (:attr:`saturation`); a float tile's is unknown. :meth:`as_intensity` and
+    :meth:`ground_range` set it, so the node reads an integer tile's samples for it once."""
 
     # -- axes ---------------------------------------------------------------------------
     @property
@@ -200,7 +201,9 @@ class Tile:
         its :attr:`saturation` squared with them (an 8-bit sample clips at 255, so its
         intensity at 255^2)."""
         if self.kind == "intensity":
-            return self
+            if self.full_scale is not None or WIRE_DTYPES[self.wire_dtype].kind == "f":
+                return self
+            return self.replace(full_scale=self.saturation)  # integer samples: read their clip level once
         sat = self.saturation
         return self.replace(pixels=np.square(self.pixels, dtype=np.float32), kind="intensity", wire_dtype="float32",
                             full_scale=None if sat is None else sat * sat)
