@@ -344,6 +344,12 @@ class CalibrationSettings:
     """The look score z of SPEC 6.1 (docs/fusion.md): ``"lr"`` sums per-detector log likelihood
     ratios of the injected targets against the background (a weak response counts against),
     ``"fisher"`` sums the background tails ``-ln S_N`` (never below 0)."""
+    look_weights: Literal["fit", "sum"] = "sum"
+    """How the look score weighs the detectors' log likelihood ratios (``look_score = "lr"``):
+    ``"sum"`` = every detector 1 (the default); ``"fit"`` = weights >= 0 fitted on the
+    calibration's injected targets against its clean cells (a logistic fit: detectors that read
+    the same pixels the same way share their weight; clipped places apart). docs/fusion.md,
+    "Fitted detector weights", has the figures it was measured on and why it is not the default."""
     look_pd: float = 0.95
     """A look detects where its score z reaches z_tau, the largest threshold that keeps this share
     of the injected targets (fired and z >= z_tau); weaker looks count as misses (SPEC 6.1,

@@ -194,10 +194,21 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
         info["skipped"] = "non-target responses of the detectors are not joint (different lengths)"
         return _looks.LookModel(tails, {}, info, lrs, lrs_clipped, None if lrs_clipped is None else float(limit))
     tables = {}
+    weights: dict[str, dict[str, float]] = {}
+    weights_clipped: dict[str, dict[str, float]] = {}
+    fit_weights = lrs is not None and calibration.look_weights == "fit"
+    if fit_weights:
+        info["weights"] = ("per detector set, the weight of each detector's term in z: a class-balanced logistic fit "
+                           "(weights >= 0) of the injected targets against the clean cells the set fired on")
     for n in range(1, len(dets) + 1):
         for subset in itertools.combinations(dets, n):
-            z_t, f_t, z_n, f_n = _looks.look_scores(responses.target, responses.nontarget, taus, terms, subset,
-                                                    clipped_terms=lrs_clipped, clipped_at=clipped_at)
+            z_t, f_t, z_n, f_n, w, w_c = _looks.look_scores(responses.target, responses.nontarget, taus, terms,
+                                                            subset, clipped_terms=lrs_clipped, clipped_at=clipped_at,
+                                                            fit=fit_weights)
+            if w:
+                weights[_looks.subset_key(subset)] = w
+            if w_c:
+                weights_clipped[_looks.subset_key(subset)] = w_c
             fired_z = np.concatenate([z_t[f_t & np.isfinite(z_t)], z_n[f_n & np.isfinite(z_n)]])
             # every fired response above a threshold below all of them, the others below it ...
             tau = float(fired_z.min()) - 1e-9 * max(1.0, abs(float(fired_z.min()))) if fired_z.size else 0.0
@@ -225,4 +236,5 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
             pd_tau = float(np.mean(hit_t[covered])) if covered.any() else math.nan
             tables[_looks.subset_key(subset)] = DetectorPerformance(tau=tau, confidence=conf, pyr=pyr, tau_source=source,
                                                              pd_at_tau=pd_tau)
-    return _looks.LookModel(tails, tables, info, lrs, lrs_clipped, None if lrs_clipped is None else float(limit))
+    return _looks.LookModel(tails, tables, info, lrs, lrs_clipped, None if lrs_clipped is None else float(limit),
+                            weights or None, weights_clipped or None)
