@@ -239,9 +239,10 @@ class LookModel:
         # canonical order: the sum's rounding does not depend on the order detectors are listed
         terms = self.terms_at(headroom_db)
         w = self.weights_of(detectors, clipped=terms is self.lrs_clipped)
-        us = [terms[d](responses[d]) for d in _canonical(detectors) if d in terms and d in responses]
-        ws = [w.get(d, 1.0) for d in _canonical(detectors) if d in terms and d in responses]
-        return np.zeros(np.shape(next(iter(responses.values()), 0.0))) if not us else _combine(us, ws)
+        present = [d for d in _canonical(detectors) if d in terms and d in responses]
+        if not present:
+            return np.zeros(np.shape(next(iter(responses.values()), 0.0)))
+        return _combine([terms[d](responses[d]) for d in present], [w.get(d, 1.0) for d in present])
 
     def weights_of(self, detectors: Sequence[str], *, clipped: bool = False) -> Mapping[str, float]:
         """The weights of a detector set's terms (empty: every term 1), at places that clip or not."""
@@ -282,6 +283,7 @@ def fit_weights(u_t: np.ndarray, u_n: np.ndarray) -> np.ndarray:
     lowers z. Without targets or cells: all 1.
     """
     from scipy.optimize import minimize
+    from scipy.special import expit
 
     t = np.asarray(u_t, dtype=np.float64)
     n = np.asarray(u_n, dtype=np.float64)
@@ -296,9 +298,8 @@ def fit_weights(u_t: np.ndarray, u_n: np.ndarray) -> np.ndarray:
     def loss(p: np.ndarray) -> tuple[float, np.ndarray]:
         w, b = p[:k], p[k]
         s = x @ w + b
-        q = 0.5 * (1.0 + np.tanh(0.5 * s))  # the logistic function, without overflow
         f = float(np.sum(a * (np.logaddexp(0.0, s) - y * s))) + ridge * float(np.sum((w - 1.0) ** 2))
-        r = a * (q - y)
+        r = a * (expit(s) - y)
         return f, np.concatenate([x.T @ r + 2.0 * ridge * (w - 1.0), [r.sum()]])
 
     res = minimize(loss, np.concatenate([np.ones(k), [0.0]]), jac=True, method="L-BFGS-B",

@@ -2,7 +2,7 @@
 
 ::
 
-    own leg commits --> ExchangeGrid --> DeltaPublisher (PUB, node.exchange_publish)
+    own leg commits --> ExchangeGrid --> DeltaPublisher (XPUB, node.exchange_publish)
                                                |  [b"evidence", msgpack delta v1]
     other nodes' PUB --> PeerLink (SUB, node.exchange_peers) --> NodeExchange.pump
                                                                    --> ExchangeGrid.ingest --> contacts
@@ -46,15 +46,28 @@ def attach_exchange(pipeline: Any, *, node: str, on_delta: Callable[[EvidenceDel
 
 
 class DeltaPublisher:
-    """PUB socket publishing this node's deltas as ``[b"evidence", delta]``."""
+    """Publishes this node's deltas as ``[b"evidence", delta]``: an XPUB socket, which sends as
+    a PUB does and also hears each peer's subscription (:meth:`subscriptions`), so a caller can
+    wait for a peer to be listening instead of for an amount of time (ZeroMQ drops what a PUB
+    sends before the subscription arrives)."""
 
     def __init__(self, endpoint: str, *, context: zmq.Context | None = None, hwm: int = 100000) -> None:
-        self._sock = (context or zmq.Context.instance()).socket(zmq.PUB)
+        self._sock = (context or zmq.Context.instance()).socket(zmq.XPUB)
+        self._sock.setsockopt(zmq.XPUB_VERBOSE, 1)  # every peer's subscription, not only the first
         self._sock.setsockopt(zmq.LINGER, 1000)
         self._sock.setsockopt(zmq.SNDHWM, hwm)
         self._sock.bind(endpoint)
         self.endpoint = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)
         self.sent = 0
+        self._subscriptions = 0
+
+    def subscriptions(self) -> int:
+        """Peer subscriptions heard so far (each SUB that subscribed; unsubscriptions are not
+        counted). Reads the ones waiting on the socket, without blocking."""
+        while not self._sock.closed and self._sock.poll(0):
+            if self._sock.recv()[:1] == b"\x01":
+                self._subscriptions += 1
+        return self._subscriptions
 
     def send(self, delta: EvidenceDelta) -> None:
         self._sock.send_multipart([TOPIC, encode_delta(delta)])

@@ -18,6 +18,7 @@ from atr_node.io.atrlog import read_atrlog
 from atr_node.node.exchange import attach_exchange
 from atr_node.node.pipeline import Pipeline
 
+from ..waiting import WAIT_S, wait_until
 from .conftest import split_by_leg
 
 
@@ -223,8 +224,6 @@ def test_two_nodes_exchange_deltas_over_zeromq(four_leg_mission, tmp_path):
     """Two nodes on loopback, each publishing its committed legs and ingesting the other's:
     both end with the grid of one vehicle doing both surveys, bit for bit; a replayed delta
     is recognised; garbage on the link is counted, never fatal."""
-    import time
-
     from atr_node.node.exchange import NodeExchange
 
     settings, _, files = four_leg_mission
@@ -239,7 +238,9 @@ def test_two_nodes_exchange_deltas_over_zeromq(four_leg_mission, tmp_path):
             ex[node] = NodeExchange(pipes[node], node=node, publish="tcp://127.0.0.1:*")
         ex["auv-a"].connect(ex["auv-b"].publisher.endpoint)
         ex["auv-b"].connect(ex["auv-a"].publisher.endpoint)
-        time.sleep(1.0)  # subscriptions are up before the first delta (ZeroMQ slow joiner)
+        # each publisher has heard the other's subscription before the first delta (what a PUB
+        # sends before that is dropped: ZeroMQ's slow joiner)
+        assert wait_until(lambda: all(e.publisher.subscriptions() >= 1 for e in ex.values()))
         for node, log in logs.items():  # the two vehicles survey in turn, pumping as they go
             for rec in read_atrlog(log):
                 pipes[node].feed(rec)
@@ -253,13 +254,10 @@ def test_two_nodes_exchange_deltas_over_zeromq(four_leg_mission, tmp_path):
         for d in replayed:
             ex["auv-a"].publisher.send(d)
         ex["auv-a"].publisher._sock.send_multipart([b"evidence", b"\xc1 not msgpack"])
-        deadline = time.monotonic() + 20
-        while time.monotonic() < deadline:
-            for e in ex.values():
-                e.pump(timeout_s=0.05)
-            if (ex["auv-a"].counters["ingested"] == n_sent["auv-b"]
-                    and ex["auv-b"].counters["duplicates"] == len(replayed) and ex["auv-b"].counters["rejected"] == 1):
-                break
+        wait_until(lambda: (ex["auv-a"].counters["ingested"] == n_sent["auv-b"]
+                            and ex["auv-b"].counters["duplicates"] == len(replayed)
+                            and ex["auv-b"].counters["rejected"] == 1),
+                   step=lambda: [e.pump(timeout_s=0.05) for e in ex.values()])
         assert ex["auv-a"].counters["ingested"] == n_sent["auv-b"] > 0
         assert ex["auv-b"].counters["ingested"] == n_sent["auv-a"] > 0
         assert ex["auv-b"].counters["duplicates"] == len(replayed) and ex["auv-b"].counters["rejected"] == 1
@@ -273,8 +271,6 @@ def test_two_nodes_exchange_deltas_over_zeromq(four_leg_mission, tmp_path):
 
 def test_node_service_publishes_its_deltas_from_the_settings(four_leg_mission, tmp_path):
     """``node.exchange_publish`` in the settings: the service's commits go out on ZeroMQ."""
-    import time
-
     from atr_node.node.exchange import PeerLink
     from atr_node.node.service import NodeService
     from atr_node.io.atrlog import read_atrlog as records
@@ -284,12 +280,12 @@ def test_node_service_publishes_its_deltas_from_the_settings(four_leg_mission, t
     service = NodeService(settings.replace(node=node), model=PerformanceModel.shipped(), workers=0)
     try:
         sub = PeerLink([service.exchange.publisher.endpoint])
-        time.sleep(1.0)  # ZeroMQ slow joiner
+        assert wait_until(lambda: service.exchange.publisher.subscriptions() >= 1)  # ZeroMQ slow joiner
         assert service.run(records(files.atrlog))
         sent = service.pipeline.grid.outbox
         got = []
         while len(got) < len(sent):
-            payload = sub.recv(timeout_s=5.0)
+            payload = sub.recv(timeout_s=WAIT_S)  # a hang guard: the deltas were sent before this
             assert payload is not None, f"lost a delta: {len(got)} of {len(sent)}"
             got.append(decode_delta(payload))
         sub.close()
