@@ -14,7 +14,7 @@ from atr_node.calibration.looks import fit_weights, subset_key
 from atr_node.calibration.model import PerformanceModel, _digest
 from atr_node.calibration.responses import Responses
 from atr_node.config import CalibrationSettings, ThresholdSettings
-from atr_node.errors import ConfigError, ModelFileError
+from atr_node.errors import ModelFileError
 
 DETS = ("mf", "lac", "smf", "z")
 
@@ -141,11 +141,3 @@ def test_clipped_places_get_weights_of_their_own(rng):
     direct = sum(w[d] * model.looks.lrs[d](g[d]) for d in DETS)
     np.testing.assert_allclose(model.look_score(g, DETS, headroom_db=20.0), direct, rtol=1e-12)
 
-
-def test_look_weights_setting_is_checked(tmp_path):
-    from atr_node.config import load_settings
-
-    cfg = tmp_path / "c.toml"
-    cfg.write_text('[calibration]\nlook_weights = "max"\n')
-    with pytest.raises(ConfigError, match="calibration.look_weights"):
-        load_settings(cfg)

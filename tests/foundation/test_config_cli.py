@@ -43,6 +43,8 @@ def write(tmp_path, text, name="c.toml"):
     ("[fusion]\neps = 0.5\n", "fusion.eps", "must be in"),
     ("[calibration]\nlook_z_min = nan\n", "calibration.look_z_min", "must be a number below inf"),
     ("[calibration]\nlook_z_min = inf\n", "calibration.look_z_min", "must be a number below inf"),
+    ("[calibration]\nlook_weights = \"max\"\n", "calibration.look_weights", "expected one of"),
+    ("[calibration]\nclip_headroom_db = nan\n", "calibration.clip_headroom_db", "must be a finite number of dB"),
     ("[node]\nheartbeat_s = 5.0\n", "node.heartbeat_s", "at least once a second"),
     ("[mission]\norigin_lat_deg = 44.0\n", "mission.origin_lat_deg", "together"),
 ])
