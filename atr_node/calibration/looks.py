@@ -359,6 +359,31 @@ def look_scores(target: Mapping[str, np.ndarray], nontarget: Mapping[str, np.nda
             dict(zip(detectors, ws_c)) if fit and split else {})
 
 
+CONFIDENCE_TIE = 1e-3
+"""Size of :func:`ranked_confidence`'s tie-break: at most ``CONFIDENCE_TIE / 4`` on a look's
+confidence, far below any difference the calibration resolves."""
+CONFIDENCE_TIE_SCALE = 10.0
+"""Scale of z in :func:`ranked_confidence` (the lr score spans about -30 to 30)."""
+
+
+def ranked_confidence(c: np.ndarray | float, z: np.ndarray | float) -> np.ndarray:
+    """A look's confidence with the ties of its table broken by its score ``z``:
+    ``c + e c (1 - c) s(z)``, ``e`` = :data:`CONFIDENCE_TIE`, ``s(z) = 1/2 + atan(z / 10) / pi``
+    in (0, 1).
+
+    The table ``c(z)`` is flat where the calibration cannot tell scores apart: above its
+    strongest clean cell (the smoothed background survival stops at half a cell) and across
+    its isotonic pools. There every look gets the same confidence, so a contact with one
+    overwhelming look and one with a look just past the last clean cell tie at the same Bel,
+    and the ROC, which sweeps Bel, takes them in together. The term orders them by z (the
+    score the table is measured on, higher = rarer on seabed) without moving any confidence by
+    more than ``e / 4``: strictly increasing in ``c`` and, where ``0 < c < 1``, in ``z``; 0 and
+    1 stay 0 and 1; NaN stays NaN."""
+    c = np.asarray(c, dtype=np.float64)
+    s = 0.5 + np.arctan(np.asarray(z, dtype=np.float64) / CONFIDENCE_TIE_SCALE) / math.pi
+    return c + CONFIDENCE_TIE * c * (1.0 - c) * s
+
+
 def headroom_db(full_scale: float | None, background: np.ndarray | float) -> np.ndarray:
     """How far below the recording's full scale (its clip level, intensity) the seabed's mean
     intensity ``background`` lies, in dB: ``10 log10(full_scale / background)``. inf where the

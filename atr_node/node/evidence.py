@@ -21,7 +21,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..calibration.looks import subset_key
+from ..calibration.looks import ranked_confidence, subset_key
 from ..fusion import DetectionEvidence, DetectorObservation
 
 log = logging.getLogger(__name__)
@@ -99,7 +99,8 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
                 continue
             if not table.detects(z):
                 continue  # a look this weak is a miss (calibration.look_pd, look_z_min): no T mass here
-            c = float(np.clip(table.confidence_at(z), 0.0, 1.0))
+            # the table's ties (its flat top, its isotonic pools) broken by z: Bel ranks them
+            c = float(ranked_confidence(np.clip(table.confidence_at(z), 0.0, 1.0), z))
             dets.append(DetectionEvidence.from_detection(x, c, source=d))
         pd = _pd(table.pd_at(ranges_m)) if missed else np.zeros(ranges_m.size)
     if cov is None:

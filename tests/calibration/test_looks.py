@@ -219,3 +219,25 @@ def test_with_prior_matches_a_model_made_with_that_prior(rng):
             np.testing.assert_allclose(moved.detectors[d].confidence.confidence, cb.confidence, rtol=1e-9)
     assert moved.prior_target == 0.003
     np.testing.assert_allclose(with_prior(np.array([0.5]), 0.5, 0.1), [0.1], rtol=1e-15)
+
+
+def test_ranked_confidence_breaks_ties_by_z_and_moves_nothing_else():
+    """c + e c (1 - c) s(z), s = 1/2 + atan(z / 10) / pi: computed directly in float64 here;
+    strictly increasing in z at a fixed c in (0, 1) and in c at a fixed z; within e / 4 of c;
+    0, 1 and NaN unchanged; finite for any z."""
+    from atr_node.calibration.looks import CONFIDENCE_TIE, ranked_confidence
+
+    c = np.array([1e-12, 0.01, 0.3, 0.5, 0.878, 1 - 1e-12])
+    for z in (-40.0, -1.0, 0.0, 3.7, 25.0):
+        s = 0.5 + math.atan(z / 10.0) / math.pi
+        np.testing.assert_allclose(ranked_confidence(c, z), c + CONFIDENCE_TIE * c * (1 - c) * s, rtol=1e-15, atol=0)
+    zs = np.linspace(-60.0, 60.0, 241)
+    for ci in c[1:-1]:
+        r = ranked_confidence(np.full(zs.size, ci), zs)
+        assert np.all(np.diff(r) > 0) and np.all(np.abs(r - ci) <= CONFIDENCE_TIE / 4)
+    cs = np.linspace(0.0, 1.0, 1001)
+    for z in (-1e300, -5.0, 0.0, 5.0, 1e300, math.inf, -math.inf):
+        r = ranked_confidence(cs, z)
+        assert np.all(np.isfinite(r)) and np.all(np.diff(r) > 0)
+    assert ranked_confidence(0.0, 7.0) == 0.0 and ranked_confidence(1.0, 7.0) == 1.0
+    assert np.isnan(ranked_confidence(np.nan, 1.0)) and np.isnan(ranked_confidence(0.5, np.nan))

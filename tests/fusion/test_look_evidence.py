@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from atr_node.calibration.estimate import estimate_model
+from atr_node.calibration.looks import CONFIDENCE_TIE, ranked_confidence
 from atr_node.calibration.responses import Responses
 from atr_node.config import CalibrationSettings, FusionSettings, ThresholdSettings
 from atr_node.detectors.extract import Detection
@@ -20,6 +21,11 @@ from .conftest import pixel_of, track_geometry
 
 DETS = ("mf", "lac", "smf", "z")
 POINT = (35.0, 20.0)  # east, north
+
+
+def look_c(table, z) -> float:
+    """A look's T mass as the node deposits it: the table's c(z), its ties broken by z."""
+    return float(ranked_confidence(table.confidence_at(z), z))
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +96,7 @@ def test_a_look_is_one_piece_of_evidence(frame, model):
     b_look, grid = bel(frame, model, [(1, 0.0, 0.0, True)], "look")
     assert grid.layers == ("look",) and {r.detector for r in grid.detections} == set(DETS)
     z = model.look_score({d: np.float64(4.5) for d in DETS}, DETS)
-    assert b_look == pytest.approx(float(model.look(DETS).confidence_at(z)), rel=1e-9)
+    assert b_look == pytest.approx(look_c(model.look(DETS), z), rel=1e-9)
     b_paper, _ = bel(frame, model, [(1, 0.0, 0.0, True)], "paper")
     each = [float(model.confidence(d, 4.5)) for d in DETS]
     assert b_paper == pytest.approx(1 - np.prod([1 - c for c in each]), rel=1e-9)
@@ -104,14 +110,14 @@ def test_an_object_on_one_leg_that_another_look_missed_falls_below_report(frame,
     b_look, _ = bel(frame, model, views, "look")
     b_paper, _ = bel(frame, model, views, "paper")
     pd = float(model.look(DETS).pd_at(35.0))
-    c = float(model.look(DETS).confidence_at(model.look_score({d: np.float64(4.5) for d in DETS}, DETS)))
+    c = look_c(model.look(DETS), model.look_score({d: np.float64(4.5) for d in DETS}, DETS))
     assert b_look == pytest.approx(c * (1 - pd) / (1 - c * pd), rel=1e-6)  # Dempster, closed form
     assert b_look < FusionSettings().report_bel < b_paper
 
 
 def test_two_detecting_looks_stay_above_report(frame, model):
     b, _ = bel(frame, model, [(1, 0.0, 0.0, True), (2, 70.0, 180.0, True)], "look")
-    c = float(model.look(DETS).confidence_at(model.look_score({d: np.float64(4.5) for d in DETS}, DETS)))
+    c = look_c(model.look(DETS), model.look_score({d: np.float64(4.5) for d in DETS}, DETS))
     assert b == pytest.approx(1 - (1 - c) ** 2, rel=1e-9) and b > FusionSettings().report_bel
 
 
@@ -171,7 +177,7 @@ def test_without_the_look_rule_every_fired_look_detects(frame, model):
     z = model.look_score({d: np.float64(v) for d, v in weak.items()}, DETS)
     assert z < table.tau  # below every fired calibration score
     b, grid = bel(frame, model, [(1, 0.0, 0.0, True)], "look", gamma=weak)
-    assert len(grid.detections) == 1 and b == pytest.approx(float(table.confidence_at(z)), rel=1e-12) and b > 0
+    assert len(grid.detections) == 1 and b == pytest.approx(look_c(table, z), rel=1e-12) and b > 0
 
 
 STRONG_THEN_MISS = [(1, 0.0, 0.0, True), (2, 70.0, 180.0, False)]
@@ -199,7 +205,7 @@ def test_a_look_whose_detectors_favour_the_seabed_is_a_miss(frame, model, model_
     assert z > model.look(DETS).tau  # the same look detects without the floor
     b_mixed, grid = bel(frame, model_z, legs, "look")
     b_miss, _ = bel(frame, model_z, STRONG_THEN_MISS, "look")
-    c = float(table.confidence_at(model_z.look_score({d: np.float64(4.5) for d in DETS}, DETS)))
+    c = look_c(table, model_z.look_score({d: np.float64(4.5) for d in DETS}, DETS))
     q = float(table.pd_at(35.0))  # leg 2 sees POINT at 35 m (as in the one-leg test above)
     assert b_mixed == pytest.approx(b_miss, rel=1e-12)
     assert b_mixed == pytest.approx(c * (1 - q) / (1 - c * q), rel=1e-6)  # Dempster, closed form
@@ -251,5 +257,18 @@ def test_a_look_on_clipped_seabed_is_scored_with_the_clipped_tables(frame):
         assert obs.detections
         conf[head] = [r.confidence for r in obs.detections]
         z = float(mod.look_score({d: np.float64(v) for d, v in gam.items()}, DETS, headroom_db=head))
-        assert conf[head] == pytest.approx([float(mod.look(DETS).confidence_at(z))] * len(conf[head]), rel=1e-12)
+        assert conf[head] == pytest.approx([look_c(mod.look(DETS), z)] * len(conf[head]), rel=1e-12)
     assert min(conf[6.0]) > max(conf[25.0])
+
+
+def test_looks_the_table_cannot_tell_apart_rank_by_their_score(frame, model):
+    """Two looks scoring above every clean cell of the calibration get the same c(z) from the
+    table (its flat top); deposited, the stronger one's T mass and Bel are the higher, each
+    within CONFIDENCE_TIE / 4 of the table's value."""
+    table = model.look(DETS)
+    z = {g: float(model.look_score({d: np.float64(g) for d in DETS}, DETS)) for g in (3.75, 4.5)}
+    assert z[4.5] > z[3.75] and float(table.confidence_at(z[4.5])) == float(table.confidence_at(z[3.75]))
+    b = {g: bel(frame, model, [(1, 0.0, 0.0, True)], "look", gamma=g)[0] for g in (3.75, 4.5)}
+    assert b[4.5] > b[3.75]
+    for g in b:
+        assert abs(b[g] - float(table.confidence_at(z[g]))) <= CONFIDENCE_TIE / 4
