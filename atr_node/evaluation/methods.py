@@ -245,7 +245,7 @@ def fuse(run: EvaluationRun, detectors: Sequence[str], *, missed: bool = True,
     t_last = 0.0
     for u in run.units:
         obs = unit_observations(model_of(u), u.result.detections, u.result.covered, u.ranges_m, tuple(detectors),
-                                layers, missed=missed)
+                                layers, missed=missed, geometry=u.geometry, object_m=s.template.length_m)
         grid.add_observation(Observation(u.leg, u.t, u.geometry, obs))
         t_last = max(t_last, u.t)
     grid.close_all()

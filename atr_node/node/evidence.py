@@ -16,6 +16,7 @@ The node (``pipeline._fuse``) and the evaluation (``evaluation.methods.fuse``) b
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import Any, Callable, Mapping, Sequence
 
@@ -44,7 +45,8 @@ def evidence_layers(evidence: str, model: Any, enabled: Sequence[str]) -> tuple[
 
 def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], covered: Callable[[str], np.ndarray],
                       ranges_m: np.ndarray, enabled: Sequence[str], layers: Sequence[str], *,
-                      missed: bool = True) -> tuple[DetectorObservation, ...]:
+                      missed: bool = True, geometry: Any = None,
+                      object_m: float = 0.0) -> tuple[DetectorObservation, ...]:
     """The observations of one unit's core for a grid with evidence ``layers``.
 
     Parameters
@@ -59,6 +61,12 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
         Ground range of each column.
     missed : bool
         False: no missed-detection evidence (Pd 0), for the comparison without it.
+    geometry : TileGeometry, optional
+        The core's georeferencing; with ``object_m`` > 0, look evidence places a look's
+        detections of one object at one anchor (:func:`one_anchor_per_object`).
+    object_m : float
+        Anchors of one look closer than this (metres on the ground) are one object: the
+        template's length (the node passes ``template.length_m``); 0 = every anchor stands.
     """
     ranges_m = np.asarray(ranges_m, dtype=np.float64)
     if tuple(layers) != (LOOK_LAYER,):
@@ -93,19 +101,64 @@ def unit_observations(model: Any, detections: Mapping[str, Sequence[Any]], cover
                 joint = dict(x.joint) if x.joint is not None else {d: x.gamma}
                 scored.append((d, x, float(model.look_score({k: np.float64(v) for k, v in joint.items()}, enabled,
                                                             headroom_db=x.headroom_db))))
-        keep = _one_per_patch([x for _, x, _ in scored], [z for _, _, z in scored])
-        for (d, x, z), k in zip(scored, keep):
-            if not k:
+        # a look this weak is a miss (calibration.look_pd, look_z_min): no T mass there
+        found = [(d, x, z) for d, x, z in scored if table.detects(z)]
+        # anchors from every detecting look, then one look per textured patch: thinning a patch
+        # (detectors.patch_one_look) drops detections, it never moves the others
+        anchor = (one_anchor_per_object([x for _, x, _ in found], [z for _, _, z in found], geometry, object_m)
+                  if geometry is not None and object_m > 0 else list(range(len(found))))
+        keep = _one_per_patch([x for _, x, _ in found], [z for _, _, z in found])
+        for i, ((d, x, z), a) in enumerate(zip(found, anchor)):
+            if not keep[i]:
                 continue
-            if not table.detects(z):
-                continue  # a look this weak is a miss (calibration.look_pd, look_z_min): no T mass here
             # the table's ties (its flat top, its isotonic pools) broken by z: Bel ranks them
             c = float(ranked_confidence(np.clip(table.confidence_at(z), 0.0, 1.0), z))
-            dets.append(DetectionEvidence.from_detection(x, c, source=d))
+            ev = DetectionEvidence.from_detection(x, c, source=d)
+            if a != i:  # at the anchor of the object's strongest detection in this look
+                at = found[a][1]
+                ev = dataclasses.replace(ev, row=int(at.row), col=int(at.col), range_m=float(at.range_m))
+            dets.append(ev)
         pd = _pd(table.pd_at(ranges_m)) if missed else np.zeros(ranges_m.size)
     if cov is None:
         return ()
     return (DetectorObservation(LOOK_LAYER, cov, pd, tuple(dets)),)
+
+
+def one_anchor_per_object(found: Sequence[Any], strength: Sequence[float], geometry: Any,
+                          radius_m: float) -> list[int]:
+    """For each of one look's detections ``found``, the index of the detection whose anchor it
+    takes: the strongest (largest ``strength``, the look score z; the first on ties) point
+    detection within ``radius_m`` on the ground of it, itself when none is stronger.
+
+    The detectors anchor one object at different places (the echo, the echo/shadow boundary,
+    the centre of a window, the strongest speckle of the highlight), up to two or three metres
+    apart, and the contact stage, which groups detections within the association gate, split
+    such a spread into two or three contacts around one target. Placed at one anchor, a look's
+    detections of one object make one contact, its detectors still listed. Extended objects
+    (``length_m`` set, ``detectors/objects.py``) keep their own anchors and take no others.
+    Greedy from the strongest, as non-maximum suppression: a detection within ``radius_m`` of
+    two stronger anchors takes the stronger one's."""
+    n = len(found)
+    out = list(range(n))
+    if n < 2 or not radius_m > 0:
+        return out
+    point = [getattr(x, "length_m", None) is None for x in found]
+    idx = [i for i in range(n) if point[i]]
+    if len(idx) < 2:
+        return out
+    e, nn = geometry.world(np.array([found[i].row for i in idx]), np.array([found[i].col for i in idx]))
+    e, nn = np.asarray(e, dtype=np.float64), np.asarray(nn, dtype=np.float64)
+    order = sorted(range(len(idx)), key=lambda k: (-float(strength[idx[k]]), idx[k]))
+    anchors: list[int] = []  # positions in idx, strongest first
+    for k in order:
+        if anchors:
+            dist = np.hypot(e[anchors] - e[k], nn[anchors] - nn[k])
+            near = np.flatnonzero(dist < radius_m)
+            if near.size:
+                out[idx[k]] = idx[anchors[int(near[0])]]
+                continue
+        anchors.append(k)
+    return out
 
 
 def _one_per_patch(found: Sequence[Any], strength: Sequence[float]) -> list[bool]:

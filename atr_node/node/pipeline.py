@@ -724,7 +724,8 @@ class Pipeline:
         geometry = tile_geometry(core, self.frame)
         ranges = core.ranges_m
         observations = unit_observations(model, res.detections, res.covered, ranges, self.enabled,
-                                         self.grid.layers)
+                                         self.grid.layers, geometry=geometry,
+                                         object_m=self.settings.template.length_m)
         t = float(unit.ping_time[unit.core][-1])
         self._last_t = max(self._last_t, t)
         t1 = time.monotonic()

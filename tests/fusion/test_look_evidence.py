@@ -272,3 +272,61 @@ def test_looks_the_table_cannot_tell_apart_rank_by_their_score(frame, model):
     assert b[4.5] > b[3.75]
     for g in b:
         assert abs(b[g] - float(table.confidence_at(z[g]))) <= CONFIDENCE_TIE / 4
+
+
+def _spread_look(frame, model, object_m):
+    """One look (leg 1) on one object: MF anchored at POINT with the strongest joint responses,
+    SMF 1.5 m further along track and Z 1.2 m nearer in range with weaker ones, and LAC on a
+    second object 6 m along track; the grid's detection records after it."""
+    g = track_geometry(frame, east0_m=0.0, north0_m=0.0, heading_deg=0.0, rows=400, cols=500, leg=1)
+    row, col = pixel_of(g, *POINT)
+    strong = tuple((d, 4.5) for d in DETS)
+    weaker = tuple((d, 3.5) for d in DETS)
+    at = {"mf": (row, col, strong), "smf": (row + 15, col, weaker), "z": (row, col - 12, weaker),
+          "lac": (row + 60, col, weaker)}
+    dets = {d: [Detection(d, r, c, dict(j)[d], float(g.ranges_m[c]), 0.6, 2.0, 50, joint=j)] for d, (r, c, j) in at.items()}
+    layers = evidence_layers("look", model, DETS)
+    obs = unit_observations(model, dets, lambda d: np.ones((400, 500), bool), g.ranges_m, DETS, layers,
+                            geometry=g, object_m=object_m)
+    grid = EvidenceGrid(FusionSettings(), gate_m=3.0, detectors=DETS, layers=layers)
+    grid.add_observation(Observation(1, 1.7e9, g, obs))
+    grid.close_all()
+    return {r.detector: (r.east_m, r.north_m, r.confidence) for r in grid.detections}
+
+
+def test_a_looks_detections_of_one_object_take_its_strongest_anchor(frame, model):
+    """Anchors of one look within the template's length (2 m) of a stronger one are placed at
+    it, each keeping its detector and its own confidence; an anchor 6 m away stands; with
+    object_m = 0 every anchor stands (the positions the detectors gave)."""
+    merged = _spread_look(frame, model, 2.0)
+    apart = _spread_look(frame, model, 0.0)
+    assert set(merged) == set(apart) == set(DETS)
+    for d in ("smf", "z"):
+        assert merged[d][:2] == pytest.approx(merged["mf"][:2], abs=1e-9)
+        assert math.hypot(apart[d][0] - apart["mf"][0], apart[d][1] - apart["mf"][1]) == pytest.approx(
+            1.5 if d == "smf" else 1.2, abs=0.11)
+        assert merged[d][2] == apart[d][2] < merged["mf"][2]
+    assert merged["lac"] == apart["lac"] and math.hypot(merged["lac"][0] - merged["mf"][0],
+                                                         merged["lac"][1] - merged["mf"][1]) == pytest.approx(6.0, abs=0.11)
+
+
+def test_one_anchor_per_object_greedy_from_the_strongest(frame):
+    """Closed cases of the rule: ties go to the first; a detection between two anchors takes the
+    stronger; extended objects neither take nor give an anchor."""
+    from types import SimpleNamespace
+
+    from atr_node.node.evidence import one_anchor_per_object
+
+    g = track_geometry(frame, east0_m=0.0, north0_m=0.0, heading_deg=0.0, rows=400, cols=500, leg=1)
+
+    def det(row, col, length=None):
+        return SimpleNamespace(row=row, col=col, length_m=length)
+
+    # along track 0.1 m per row: rows 0, 15, 30 are 1.5 m apart; 60 is 6 m from 0
+    assert one_anchor_per_object([det(0, 100), det(15, 100), det(60, 100)], [1.0, 2.0, 3.0], g, 2.0) == [1, 1, 2]
+    assert one_anchor_per_object([det(0, 100), det(15, 100)], [2.0, 2.0], g, 2.0) == [0, 0]
+    # row 30 is 1.5 m from row 15 (weaker) and 1.5 m from row 45 (stronger)
+    assert one_anchor_per_object([det(15, 100), det(30, 100), det(45, 100)], [5.0, 1.0, 9.0], g, 2.0) == [0, 2, 2]
+    assert one_anchor_per_object([det(0, 100, 20.0), det(5, 100)], [9.0, 1.0], g, 2.0) == [0, 1]
+    assert one_anchor_per_object([det(0, 100), det(5, 100, 20.0)], [9.0, 1.0], g, 2.0) == [0, 1]
+    assert one_anchor_per_object([det(0, 100), det(5, 100)], [9.0, 1.0], g, 0.0) == [0, 1]

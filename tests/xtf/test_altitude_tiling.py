@@ -302,10 +302,21 @@ def test_no_contact_in_the_water_column_or_on_the_first_return(real_data, tmp_pa
         assert near(places, "stbd", 925, 29.0)
         assert near(places, "port", 330, 24.0)
         # declutter (detectors.patch_one_look): the rock and sand-wave patches give one look
-        # per unit, so fewer contacts, none new, and the starboard object keeps its own
+        # per unit, so fewer contacts, none new, and the starboard object keeps its own. A
+        # contact's position is the mean of its detections', so where a patch's thinned
+        # detections make one contact of what were two, it lies between them: on the segment
+        # joining two contacts of one side within 100 pings (22 m, one patch), within 3 m in range
+        def between(ps, side, ping, slant):
+            same = [p for p in ps if p.side == side]
+            return any(a.ping <= ping <= b.ping and b.ping - a.ping <= 100 and abs(
+                a.slant_range_m + (b.slant_range_m - a.slant_range_m) * (ping - a.ping) / max(b.ping - a.ping, 1)
+                - slant) <= 3.0 for a in same for b in same)
+
         lean = _zones(_replay(xtf, tmp_path, "declutter", "[detectors]\npatch_one_look = true\n"), tiles, band)
         assert len(lean) < len(places)
-        assert all(near(places, p.side, p.ping, p.slant_range_m) for p in lean)
+        assert all(near(places, p.side, p.ping, p.slant_range_m) or between(places, p.side, p.ping, p.slant_range_m)
+                   for p in lean)
+        assert sum(not near(places, p.side, p.ping, p.slant_range_m) for p in lean) <= 1
         assert near(lean, "stbd", 925, 29.0)
         before = _zones(_replay(xtf, tmp_path, "before", "", model=OLD_MODEL), tiles, band)
         assert near(before, "port", 330, 24.0)
