@@ -24,6 +24,7 @@ import numpy as np
 
 from ..calibration.looks import ranked_confidence, subset_key
 from ..fusion import DetectionEvidence, DetectorObservation
+from ..fusion.baselines import leader_groups
 
 log = logging.getLogger(__name__)
 
@@ -136,28 +137,20 @@ def one_anchor_per_object(found: Sequence[Any], strength: Sequence[float], geome
     such a spread into two or three contacts around one target. Placed at one anchor, a look's
     detections of one object make one contact, its detectors still listed. Extended objects
     (``length_m`` set, ``detectors/objects.py``) keep their own anchors and take no others.
-    Greedy from the strongest, as non-maximum suppression: a detection within ``radius_m`` of
-    two stronger anchors takes the stronger one's."""
-    n = len(found)
-    out = list(range(n))
-    if n < 2 or not radius_m > 0:
+    Greedy from the strongest, as non-maximum suppression: the leader clustering the contact
+    stage and the AND/OR baselines use (:func:`~atr_node.fusion.baselines.leader_groups`), so a
+    detection within ``radius_m`` of two stronger anchors takes the stronger one's."""
+    out = list(range(len(found)))
+    idx = [i for i, x in enumerate(found) if getattr(x, "length_m", None) is None]  # point detections
+    if len(idx) < 2 or not radius_m > 0:
         return out
-    point = [getattr(x, "length_m", None) is None for x in found]
-    idx = [i for i in range(n) if point[i]]
-    if len(idx) < 2:
-        return out
-    e, nn = geometry.world(np.array([found[i].row for i in idx]), np.array([found[i].col for i in idx]))
-    e, nn = np.asarray(e, dtype=np.float64), np.asarray(nn, dtype=np.float64)
-    order = sorted(range(len(idx)), key=lambda k: (-float(strength[idx[k]]), idx[k]))
-    anchors: list[int] = []  # positions in idx, strongest first
-    for k in order:
-        if anchors:
-            dist = np.hypot(e[anchors] - e[k], nn[anchors] - nn[k])
-            near = np.flatnonzero(dist < radius_m)
-            if near.size:
-                out[idx[k]] = idx[anchors[int(near[0])]]
-                continue
-        anchors.append(k)
+    e, n = geometry.world(np.array([found[i].row for i in idx]), np.array([found[i].col for i in idx]))
+    w = np.array([float(strength[i]) for i in idx])
+    _, labels = leader_groups(np.column_stack([e, n]), w, radius_m=radius_m)
+    leader: dict[int, int] = {}
+    for k in np.lexsort((np.arange(len(idx)), -w)).tolist():  # leader_groups' order: its leaders come first
+        leader.setdefault(int(labels[k]), idx[k])
+        out[idx[k]] = leader[int(labels[k])]
     return out
 
 
