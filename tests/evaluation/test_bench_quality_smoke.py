@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -25,7 +26,21 @@ def test_quality_benchmark_scores_every_method_and_checks(tmp_path):
     assert 0.0 <= ds["pd_max"] <= 1.0 and ds["no_detection"] == 0
     assert ds["one_leg_objects"] >= 1 and 0 <= ds["one_leg_above_report"] <= ds["one_leg_objects"]
     assert set(scene["checks"]) >= {"ds_fewer_false_alarms", "one_leg_below_report_95pct", "reliability_rises"}
+    # DS default's false alarms read off its own ROC at each baseline's Pd
+    baselines = {k for k in scene["methods"] if not k.startswith("DS ")}
+    assert set(ds["fa_at_pd_of"]) == baselines
+    for k in baselines:
+        pd, fa = scene["methods"][k]["op_pd"], ds["fa_at_pd_of"][k]
+        if pd == 0:
+            assert fa == 0.0
+        elif pd > ds["pd_max"] + 1e-3:
+            assert fa == math.inf
+        elif pd < ds["pd_max"] - 1e-3:
+            assert math.isfinite(fa) and fa <= ds["fa_at_max"]
     assert "| sand-7-2x60 | DS look (default) |" in (out / "quality.md").read_text()
+    assert scene["variant"] == "base" and body["pooled_reliability"]["base"]["scenes"] == 1
+    assert (sum(x["contacts"] for x in body["pooled_reliability"]["base"]["bins"])
+            == sum(x["contacts"] for x in ds["reliability"]))
 
 
 def test_quality_benchmark_scores_a_real_recording_for_every_method(real_data, tmp_path):
@@ -58,6 +73,64 @@ def test_quality_benchmark_scores_a_real_recording_for_every_method(real_data, t
 
     assert ds["contacts"] == sum(1 for c in live if c["bel"] >= Settings().fusion.report_bel)
     assert "| scotsman-iver2.xtf | DS look (default) |" in (tmp_path / "q" / "quality.md").read_text()
+
+
+def _scene(ds_extra: dict, and_op: tuple[float, int]) -> dict:
+    ds = {"pd_max": 1.0, "fa_at_max": 45.0, "fa_at_0.8": 21.0, "fa_at_0.9": 22.0, "op_pd": 0.938, "op_fa": 31,
+          "roc_fa_at_op_pd": 22.0, "no_detection": 0, "one_leg_covered_objects": 0, "one_leg_covered_above_report": 0,
+          "multi_look_targets": 0, "multi_look_above_report": 0, "reliability": [], **ds_extra}
+    paper = {"pd_max": 1.0, "fa_at_max": 60.0, "fa_at_0.8": 30.0, "fa_at_0.9": 40.0, "op_pd": 1.0, "op_fa": 70}
+    base = {"pd_max": and_op[0], "fa_at_max": and_op[1], "op_pd": and_op[0], "op_fa": and_op[1]}
+    return {"scene": "s", "targets": 16, "methods": {"DS look (default)": ds, "DS paper (prior 0.1)": paper,
+                                                     "AND-3 (mf+z+lac)": base, "OR": dict(base)}}
+
+
+def test_fewer_false_alarms_is_judged_at_the_baseline_s_own_pd():
+    """AND-3 at Pd 15/16 with 42 false alarms. DS default reaches that Pd with 24 on its ROC:
+    fewer. Without the ROC's reading (an older JSON) only the recorded points stand in (Pd 1.0 at
+    45, the next point at or above 0.938), and DS looks worse."""
+    from atr_node.config import Settings
+
+    and_op = (0.938, 42)
+    read = _scene({"fa_at_pd_of": {"AND-3 (mf+z+lac)": 24.0, "OR": 24.0}}, and_op)
+    assert bench_quality.checks(read, Settings())["ds_fewer_false_alarms"] is True
+    old = _scene({}, and_op)
+    assert bench_quality.checks(old, Settings())["ds_fewer_false_alarms"] is False
+    # and the ROC's reading can fail too: more false alarms than the baseline at its Pd
+    worse = _scene({"fa_at_pd_of": {"AND-3 (mf+z+lac)": 43.0, "OR": 24.0}}, and_op)
+    assert bench_quality.checks(worse, Settings())["ds_fewer_false_alarms"] is False
+
+
+def _rel_scene(variant: str, rows: list[tuple[str, int, int]]) -> dict:
+    return {"variant": variant, "methods": {"DS look (default)": {"reliability": [
+        {"bel": b, "contacts": n, "targets": round(k / n, 3), "on_target": k} for b, n, k in rows]}}}
+
+
+def test_pooled_reliability_sums_the_scenes_of_a_variant():
+    """Two scenes whose own tables dip (a bin of 3 at 0.67, then 0.20): pooled, the counts add
+    up bin by bin, the shares and their Wilson intervals are those of the sums, and the
+    pooled table rises. Another variant is pooled apart, and an older table without
+    ``on_target`` gives the count back from its share."""
+    from atr_node.calibration.stats import wilson_interval
+
+    a = _rel_scene("base", [("[0.5, 0.7)", 3, 2), ("[0.7, 0.9)", 10, 2), ("[0.9, 0.99)", 6, 4)])
+    b = _rel_scene("base", [("[0.5, 0.7)", 7, 0), ("[0.7, 0.9)", 5, 3)])
+    c = _rel_scene("byte", [("[0.7, 0.9)", 4, 1)])
+    old = {"variant": "byte", "methods": {"DS look (default)": {"reliability": [
+        {"bel": "[0.7, 0.9)", "contacts": 6, "targets": 0.333}]}}}
+    got = bench_quality.pooled_reliability([a, b, c, old])
+    base = got["base"]
+    assert base["scenes"] == 2
+    assert [(x["bel"], x["contacts"], x["on_target"]) for x in base["bins"]] == [
+        ("[0.5, 0.7)", 10, 2), ("[0.7, 0.9)", 15, 5), ("[0.9, 0.99)", 6, 4)]
+    for x in base["bins"]:
+        lo, hi = wilson_interval(x["on_target"], x["contacts"])
+        assert x["share"] == round(x["on_target"] / x["contacts"], 3)
+        assert (x["low"], x["high"]) == (round(float(lo), 3), round(float(hi), 3))
+    assert base["rises"] is True
+    assert [(x["contacts"], x["on_target"]) for x in got["byte"]["bins"]] == [(10, 3)]
+    dip = bench_quality.pooled_reliability([_rel_scene("base", [("[0.5, 0.7)", 10, 5), ("[0.7, 0.9)", 10, 2)])])
+    assert dip["base"]["rises"] is False
 
 
 def test_quality_benchmark_usage_errors(capsys):
@@ -120,6 +193,10 @@ def test_covering_legs_is_the_node_s_coverage_at_pd_0_8():
     assert bench_quality.covering_legs(run, (30.0, 45.0), dets) == set()  # past the last ping
     assert bench_quality.covering_legs(run, (70.0, 15.0), dets) == set()  # beyond the swath
     assert bench_quality.covering_legs(run, (30.0, 15.0), dets, pd_min=pd_30 + 1e-9) == set()
+    # the P(y) each covering leg read there; a leg not covering is not listed
+    got = bench_quality.covering_pd(run, (30.0, 15.0), dets)  # read at the beam's own range, 30 m to 1e-9
+    assert set(got) == {3} and abs(got[3] - pd_30) < 1e-6
+    assert bench_quality.covering_pd(run, (3.0, 15.0), dets) == {}
 
 
 def test_one_run_per_folder_and_only_finished_scenes_are_reused(tmp_path, capsys):

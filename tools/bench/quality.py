@@ -16,7 +16,8 @@ contacts the node publishes, Bel >= report_bel); the share of contacts at Bel >=
 reliability table (Bel bin -> share of contacts that are targets); one-leg objects above
 report_bel, all of them and those another look covered at Pd >= 0.8 as the node saw it
 (:func:`covering_legs`; the issue's criterion counts these); targets seen on >= 2 looks above
-report_bel; contacts without a detection.
+report_bel; contacts without a detection; DS look's false alarms on its ROC at each baseline's
+own Pd (``fa_at_pd_of``: the issue's "fewer false alarms at equal Pd", :func:`checks`).
 
 Then the shared real side-scan recordings (``--recordings``; they have no ground truth): per
 method the contacts it publishes, the objects read by eye it finds (the marks of
@@ -103,13 +104,19 @@ ONE_LEG_PD = 0.8
 
 def covering_legs(run, point_en, detectors, *, pd_min: float = ONE_LEG_PD, max_off_m: float = 1.0) -> set[int]:
     """Legs whose look covered ``point_en`` (east, north in ``run.frame``) with its look P(y) >=
-    ``pd_min``, as the node saw it: a unit of the leg has a ping whose beam passes within
-    ``max_off_m`` of the point on the unit's side, the point lies in the swath, a detector
-    covered the pixel there (its score is not NaN: not in the nadir gap, the first-return band
-    or a dropped ping) and the unit's model gives the look ``Pd(r) >= pd_min`` at that range
-    (the per-detector maximum for a model without look tables)."""
+    ``pd_min``, as the node saw it (:func:`covering_pd`)."""
+    return {leg for leg, pd in covering_pd(run, point_en, detectors, max_off_m=max_off_m).items() if pd >= pd_min}
+
+
+def covering_pd(run, point_en, detectors, *, max_off_m: float = 1.0) -> dict[int, float]:
+    """Leg -> the look's P(y) at ``point_en`` for every leg whose look covered it, as the node saw
+    it: a unit of the leg has a ping whose beam passes within ``max_off_m`` of the point on the
+    unit's side, the point lies in the swath, a detector covered the pixel there (its score is
+    not NaN: not in the nadir gap, the first-return band or a dropped ping); the P(y) is the
+    unit's model's look ``Pd(r)`` at that range (the per-detector maximum for a model without
+    look tables), the largest over the leg's units that cover the point."""
     pe, pn = (float(v) for v in point_en)
-    legs: set[int] = set()
+    legs: dict[int, float] = {}
     for u in run.units:
         g = u.geometry
         de, dn = pe - g.east_m, pn - g.north_m
@@ -126,8 +133,7 @@ def covering_legs(run, point_en, detectors, *, pd_min: float = ONE_LEG_PD, max_o
         table = u.model.look(detectors)
         pd = (float(table.pd_at(r)) if table is not None
               else max(float(u.model.pd(d, r)) for d in detectors))
-        if pd >= pd_min:
-            legs.add(u.leg)
+        legs[u.leg] = max(pd, legs.get(u.leg, -math.inf))
     return legs
 
 
@@ -147,8 +153,40 @@ def _reliability(contacts, truth_en: np.ndarray) -> list[dict]:
         k = (bel >= lo) & (bel < hi)
         if k.any():
             rows.append({"bel": f"[{lo:g}, {min(hi, 1.0):g}{']' if hi > 1 else ')'}", "contacts": int(k.sum()),
-                         "targets": round(float(on[k].mean()), 3)})
+                         "targets": round(float(on[k].mean()), 3), "on_target": int(on[k].sum())})
     return rows
+
+
+def pooled_reliability(results: list[dict]) -> dict[str, dict]:
+    """DS look's reliability tables summed over the scenes of each variant ("base", "byte", ...):
+    per Bel bin the contacts, those on a target, the share and its 95 % Wilson interval, and
+    whether the shares rise (each at least the one below less 0.05, over bins of 3 or more
+    contacts: the per-scene check's rule). A scene's bins hold 1-30 contacts, where one contact
+    moves a share by 3-100 %; pooled over a variant's 9 scenes they hold 30-400."""
+    from atr_node.calibration.stats import wilson_interval
+
+    out: dict[str, dict] = {}
+    for r in results:
+        group = out.setdefault(r.get("variant", "base"), {"scenes": 0, "bins": {}})
+        group["scenes"] += 1
+        for row in r["methods"]["DS look (default)"]["reliability"]:
+            b = group["bins"].setdefault(row["bel"], [0, 0])
+            b[0] += row["contacts"]
+            b[1] += row.get("on_target", round(row["contacts"] * row["targets"]))
+    for group in out.values():
+        rows = []
+        for lo, hi in zip(BEL_BINS[:-1], BEL_BINS[1:]):
+            label = f"[{lo:g}, {min(hi, 1.0):g}{']' if hi > 1 else ')'}"
+            if label not in group["bins"]:
+                continue
+            n, k = group["bins"][label]
+            low, high = wilson_interval(k, n)
+            rows.append({"bel": label, "contacts": n, "on_target": k, "share": round(k / n, 3),
+                         "low": round(float(low), 3), "high": round(float(high), 3)})
+        shares = [x["share"] for x in rows if x["contacts"] >= 3]
+        group["bins"] = rows
+        group["rises"] = bool(all(b >= a - 0.05 for a, b in zip(shares, shares[1:])))
+    return out
 
 
 def _curve_figures(curve) -> dict:
@@ -195,9 +233,12 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
                       dtype=bool).reshape(-1)
     t_en, t_rows = _read_points(scene_dir / "truth.csv", run.frame)
     multi = np.array([int(r.get("looks") or 0) >= 2 for r in t_rows], dtype=bool)
+    ds_curve = None
     for name, kw in DS_METHODS:
         contacts, grid = fuse(run, en, **kw)
         curve = comp._roc(name, contacts)
+        if ds_curve is None:
+            ds_curve = curve  # DS default's ROC: its false alarms at each baseline's Pd (checks)
         live = node_like_contacts(run, grid)
         at_node = [c for c in live if c.bel >= report]
         at_en = _en(at_node)
@@ -224,6 +265,10 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
         p = curve.points[0]
         out["methods"][name] = {"pd_max": round(p.pd, 3), "fa_at_max": p.false_alarms, "op_pd": round(p.pd, 3),
                                 "op_fa": p.false_alarms}
+        # "at equal Pd": DS default's ROC read at this method's own Pd (unrounded), not at the
+        # next of the few points recorded above it
+        out["methods"][DS_METHODS[0][0]].setdefault("fa_at_pd_of", {})[name] = (
+            ds_curve.fa_at_pd(p.pd) if p.pd > 0 else 0.0)
     out["seconds"] = round(time.monotonic() - t0, 1)
     out["checks"] = checks(out, settings)
     return out
@@ -330,7 +375,8 @@ def checks(scene: dict, settings) -> dict:
             continue
         pd = v["op_pd"] if not name.startswith("DS paper") else None
         if pd is not None and pd > 0:
-            ds_fa = _fa_at(ds, pd, scene)
+            at = ds.get("fa_at_pd_of", {})
+            ds_fa = at[name] if name in at else _fa_at(ds, pd, scene)
             fewer &= ds_fa < v["op_fa"] or (ds_fa == 0 and v["op_fa"] == 0)
     for p in ("0.8", "0.9"):
         a, b = ds.get(f"fa_at_{p}", math.inf), paper.get(f"fa_at_{p}", math.inf)
@@ -351,7 +397,8 @@ def checks(scene: dict, settings) -> dict:
 
 
 def _fa_at(fig: dict, pd: float, scene: dict) -> float:
-    """DS's fewest false alarms at Pd >= pd, from the recorded points (pd_max, 0.8, 0.9)."""
+    """DS's fewest false alarms at Pd >= pd, from the recorded points (pd_max, 0.8, 0.9): for a
+    JSON written before ``fa_at_pd_of`` (it overstates DS at a baseline's Pd between them)."""
     cands = [(fig["pd_max"], fig["fa_at_max"])]
     for p in (0.8, 0.9):
         if math.isfinite(fig.get(f"fa_at_{p}", math.inf)):
@@ -384,6 +431,12 @@ def markdown(results: list[dict]) -> str:
         for r in results:
             rel = r["methods"]["DS look (default)"]["reliability"]
             lines.append(f"- {r['scene']}: " + "; ".join(f"{x['bel']} {x['contacts']}, {x['targets']:.2f}" for x in rel))
+        lines.append("")
+        lines.append("Reliability pooled over each variant's scenes (DS look): Bel bin -> contacts, share on a target "
+                     "[95 % Wilson interval]")
+        for name, g in pooled_reliability(results).items():
+            lines.append(f"- {name} ({g['scenes']} scenes, {'rises' if g['rises'] else 'DOES NOT RISE'}): " + "; ".join(
+                f"{x['bel']} {x['contacts']}, {x['share']:.2f} [{x['low']:.2f}, {x['high']:.2f}]" for x in g["bins"]))
     return "\n".join(lines)
 
 
@@ -507,7 +560,7 @@ def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv, 
                 return 1
         print(f"{d.name}: scoring ...", file=sys.stderr, flush=True)
         try:
-            results.append(score_scene(d, settings, online=args.online_calibration))
+            results.append({**score_scene(d, settings, online=args.online_calibration), "variant": variant})
         except AtrError as exc:
             print(f"bench_quality: {d.name}: {exc}", file=sys.stderr)
             return 1
@@ -536,7 +589,8 @@ def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv, 
         if args.json:
             _write_whole(Path(args.json), json.dumps({"command": "python tools/bench/quality.py "
                                                       + " ".join(argv or sys.argv[1:]),
-                                                      "scenes": results, "recordings": recordings},
+                                                      "scenes": results, "pooled_reliability": pooled_reliability(results),
+                                                      "recordings": recordings},
                                                      indent=1, default=float) + "\n")
     except OSError as exc:
         print(f"bench_quality: cannot write the report: {exc}", file=sys.stderr)
