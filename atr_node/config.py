@@ -344,12 +344,15 @@ class CalibrationSettings:
     """The look score z of SPEC 6.1 (docs/fusion.md): ``"lr"`` sums per-detector log likelihood
     ratios of the injected targets against the background (a weak response counts against),
     ``"fisher"`` sums the background tails ``-ln S_N`` (never below 0)."""
-    look_weights: Literal["fit", "sum"] = "sum"
+    look_weights: Literal["auto", "fit", "sum"] = "auto"
     """How the look score weighs the detectors' log likelihood ratios (``look_score = "lr"``):
-    ``"sum"`` = every detector 1 (the default); ``"fit"`` = weights >= 0 fitted on the
-    calibration's injected targets against its clean cells (a logistic fit: detectors that read
-    the same pixels the same way share their weight; clipped places apart). docs/fusion.md,
-    "Fitted detector weights", has the figures it was measured on and why it is not the default."""
+    ``"fit"`` = weights >= 0 fitted on the calibration's injected targets against its clean cells
+    (a logistic fit: detectors that read the same pixels the same way share their weight; clipped
+    places apart); ``"sum"`` = every detector 1; ``"auto"`` (the default since 2026-11-28) = the
+    fit where the calibration's seabed clips (at least 200 of its clean cells within
+    ``clip_headroom_db`` of the recording's full scale: an integer recording whose echoes saturate,
+    where the highlight detectors read the same cut pixels), else the sum. docs/fusion.md,
+    "Fitted detector weights", has the figures it was chosen on."""
     look_pd: float = 0.95
     """A look detects where its score z reaches z_tau, the largest threshold that keeps this share
     of the injected targets (fired and z >= z_tau); weaker looks count as misses (SPEC 6.1,

@@ -105,6 +105,12 @@ def estimate_model(responses: Responses, *, calibration: CalibrationSettings,
     return PerformanceModel(detectors=dets, provenance=prov, estimation=est, looks=looks)
 
 
+AUTO_FIT_CLIPPED_CELLS = 4 * _looks.MIN_STRATUM_TARGETS
+"""``calibration.look_weights = "auto"`` fits the look score's weights where at least this many of
+the calibration's clean cells lie within ``clip_headroom_db`` of the recording's full scale (the
+clean cells the clipped places need for likelihood ratios of their own): the seabed clips, and
+the highlight detectors read the same cut pixels. Float data (no full scale) never does."""
+
 DEFAULT_CELL_AREA_M2 = 5.0
 """Area of a template-sized cell when the responses do not record it (L = 2 m by W + S of
 about 2.5 m at mid-range)."""
@@ -196,10 +202,18 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     tables = {}
     weights: dict[str, dict[str, float]] = {}
     weights_clipped: dict[str, dict[str, float]] = {}
-    fit_weights = lrs is not None and calibration.look_weights == "fit"
+    fit_weights, why = False, ""
+    if lrs is not None and calibration.look_weights == "fit":
+        fit_weights = True
+    elif lrs is not None and calibration.look_weights == "auto":
+        n_clip = int(np.count_nonzero(_looks.clipped(h_n, limit))) if h_n is not None else 0
+        fit_weights = n_clip >= AUTO_FIT_CLIPPED_CELLS
+        why = (f"look_weights auto: {n_clip} of {int(np.asarray(h_n).size) if h_n is not None else 0} clean cells within "
+               f"{limit:g} dB of full scale (the fit from {AUTO_FIT_CLIPPED_CELLS})")
     if fit_weights:
         info["weights"] = ("per detector set, the weight of each detector's term in z: a class-balanced logistic fit "
-                           "(weights >= 0) of the injected targets against the clean cells the set fired on")
+                           "(weights >= 0) of the injected targets against the clean cells the set fired on"
+                           + (f" ({why})" if why else ""))
     for n in range(1, len(dets) + 1):
         for subset in itertools.combinations(dets, n):
             z_t, f_t, z_n, f_n, w, w_c = _looks.look_scores(responses.target, responses.nontarget, taus, terms,

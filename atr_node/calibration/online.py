@@ -169,6 +169,9 @@ class OnlineCalibrator:
         """Images the on-line model was made from (tiles too small for a target are skipped)."""
         self.skipped = 0
         self.clipped_db: float | None = None
+        self.weights_fitted = False
+        """Whether the on-line model's look score weighs its detectors by a fit
+        (``calibration.look_weights``, docs/fusion.md)."""
         self.iterations: list[int] | None = None
         self.error: str | None = None
         self.waiting_since: float | None = None
@@ -412,6 +415,7 @@ class OnlineCalibrator:
                 looks = model.looks
                 self.clipped_db = (None if looks is None or looks.lrs_clipped is None
                                    else float(looks.clip_headroom_db))
+                self.weights_fitted = looks is not None and looks.weights is not None
         if kind != "model":
             self.error = str(payload)
         self.close()
@@ -425,7 +429,7 @@ class OnlineCalibrator:
         return {"state": state, "deterministic": self.deterministic, "fallback": self.fallback_name,
                 "offered": self._offered, "of": self.n_tiles, "images": self.images, "skipped": self.skipped,
                 "from_tile": self.switched_at, "error": self.error, "iterations": self.iterations,
-                "clipped_db": self.clipped_db}
+                "clipped_db": self.clipped_db, "weights_fitted": self.weights_fitted}
 
     def close(self) -> None:
         """Stop the worker (idempotent)."""
@@ -497,6 +501,8 @@ def model_report(outcome: Mapping[str, Any] | None, *, tiles: int | None, fallba
             notes.append(f"converged after {lo if lo == hi else f'{lo}-{hi}'} of {cap} iterations per image")
         if o.get("clipped_db") is not None:  # an 8-bit file's bright seabed (docs/fusion.md, "Clipped recordings")
             notes.append(f"seabed within {o['clipped_db']:g} dB of full scale scored with its own likelihood ratios")
+        if o.get("weights_fitted"):  # calibration.look_weights (docs/fusion.md, "Fitted detector weights")
+            notes.append("the look score's detector weights fitted on this seabed")
         images = f"{o['images']} of {o['of']} images" + (f" ({'; '.join(notes)})" if notes else "")
         t = int(o["from_tile"])
         if t <= 1:

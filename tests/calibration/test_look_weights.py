@@ -141,3 +141,43 @@ def test_clipped_places_get_weights_of_their_own(rng):
     direct = sum(w[d] * model.looks.lrs[d](g[d]) for d in DETS)
     np.testing.assert_allclose(model.look_score(g, DETS, headroom_db=20.0), direct, rtol=1e-12)
 
+
+
+@pytest.mark.parametrize("clipped_cells, fitted", [(0, False), (199, False), (200, True), (4000, True)])
+def test_auto_fits_where_the_seabed_clips(rng, clipped_cells, fitted):
+    """``look_weights = "auto"`` (the default): the weights are fitted when at least
+    ``AUTO_FIT_CLIPPED_CELLS`` (200) of the calibration's clean cells lie within
+    ``clip_headroom_db`` of the recording's full scale, and the model is then the one ``"fit"``
+    makes; else every term weighs 1 and the model is the one ``"sum"`` makes. Float data (no full
+    scale: headroom inf) never fits. MF and Z read the same pixels here, so a fit would give the
+    pair one weight between them: the two cases differ in the scores, not only in a flag."""
+    from atr_node.calibration.estimate import AUTO_FIT_CLIPPED_CELLS
+
+    assert AUTO_FIT_CLIPPED_CELLS == 200
+    m, k = 1000, 4000
+    mf_t, mf_n = rng.normal(3.0, 1.0, m), rng.normal(0.0, 1.0, k)
+    target = {"mf": mf_t, "z": mf_t.copy(), "smf": rng.normal(3.0, 1.0, m), "lac": rng.normal(2.0, 1.0, m)}
+    nontarget = {"mf": mf_n, "z": mf_n.copy(), "smf": rng.normal(0, 1, k), "lac": rng.normal(0, 1, k)}
+    h_n = np.full(k, np.inf)
+    h_n[:clipped_cells] = 3.0
+    resp = Responses(DETS, target, nontarget, rng.uniform(10, 60, m), ("cylinder",) * m, {"cell_area_m2": 5.0},
+                     {"headroom_db": np.full(m, np.inf)}, h_n)
+    cal = dict(clip_headroom_db=10.0, prior="fixed", look_pd=0.0)
+    auto = estimate_model(resp, calibration=CalibrationSettings(look_weights="auto", **cal),
+                          thresholds=ThresholdSettings())
+    want = estimate_model(resp, calibration=CalibrationSettings(look_weights="fit" if fitted else "sum", **cal),
+                          thresholds=ThresholdSettings())
+    assert (auto.looks.weights is not None) is fitted
+    g = {d: np.array([1.0, 2.5, 4.0]) for d in DETS}
+    np.testing.assert_array_equal(auto.look_score(g, DETS), want.look_score(g, DETS))
+    a, b = auto.look(DETS), want.look(DETS)
+    assert a.tau == b.tau
+    np.testing.assert_array_equal(a.confidence.confidence, b.confidence.confidence)
+    if fitted:
+        w = auto.looks.weights[subset_key(DETS)]
+        assert w["mf"] + w["z"] == pytest.approx(1.0, abs=0.35)
+        assert "look_weights auto" in auto.looks.info["weights"]
+
+
+def test_the_default_is_auto():
+    assert CalibrationSettings().look_weights == "auto"

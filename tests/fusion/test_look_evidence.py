@@ -220,9 +220,8 @@ def test_a_look_table_of_an_unknown_source_keeps_its_threshold(frame, model_z):
     import dataclasses
 
     table = model_z.look(DETS)
-    future = dataclasses.replace(model_z, looks=type(model_z.looks)(
-        model_z.looks.tails, {"mf+lac+smf+z": dataclasses.replace(table, tau_source="look_future")},
-        model_z.looks.info, model_z.looks.lrs))
+    future = dataclasses.replace(model_z, looks=dataclasses.replace(
+        model_z.looks, tables={"mf+lac+smf+z": dataclasses.replace(table, tau_source="look_future")}))
     b_future, _ = bel(frame, future, _strong_then_weak(model_z), "look")
     b_miss, _ = bel(frame, model_z, STRONG_THEN_MISS, "look")
     assert b_future == pytest.approx(b_miss, rel=1e-12)
