@@ -105,7 +105,7 @@ def estimate_model(responses: Responses, *, calibration: CalibrationSettings,
     return PerformanceModel(detectors=dets, provenance=prov, estimation=est, looks=looks)
 
 
-AUTO_FIT_CLIPPED_CELLS = 4 * _looks.MIN_STRATUM_TARGETS
+AUTO_FIT_CLIPPED_CELLS = _looks.MIN_STRATUM_CELLS
 """``calibration.look_weights = "auto"`` fits the look score's weights where at least this many of
 the calibration's clean cells lie within ``clip_headroom_db`` of the recording's full scale (the
 clean cells the clipped places need for likelihood ratios of their own): the seabed clips, and
@@ -171,10 +171,11 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     sizes = {np.asarray(responses.nontarget[d]).size for d in dets}
     lrs_clipped, clipped_at, limit = None, None, calibration.clip_headroom_db
     h_t, h_n = responses.target_traits.get("headroom_db"), responses.nontarget_headroom_db
-    if lrs is not None and h_t is not None and h_n is not None and {np.asarray(h_n).size} == sizes:
-        c_t, c_n = _looks.clipped(h_t, limit), _looks.clipped(h_n, limit)
-        m = _looks.MIN_STRATUM_TARGETS
-        if min(int(c_t.sum()), int((~c_t).sum())) >= m and min(int(c_n.sum()), int((~c_n).sum())) >= 4 * m:
+    c_n = _looks.clipped(h_n, limit) if h_n is not None else np.zeros(0, dtype=bool)  # clean cells that clip
+    if lrs is not None and h_t is not None and h_n is not None and {c_n.size} == sizes:
+        c_t = _looks.clipped(h_t, limit)
+        if (min(int(c_t.sum()), int((~c_t).sum())) >= _looks.MIN_STRATUM_TARGETS
+                and min(int(c_n.sum()), int((~c_n).sum())) >= _looks.MIN_STRATUM_CELLS):
             lrs = {d: _looks.lr_table(responses.target[d][~c_t], responses.nontarget[d][~c_n], tail=tails[d])
                    for d in dets}
             lrs_clipped = {d: _looks.lr_table(responses.target[d][c_t], responses.nontarget[d][c_n], tail=tails[d])
@@ -206,10 +207,10 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     if lrs is not None and calibration.look_weights == "fit":
         fit_weights = True
     elif lrs is not None and calibration.look_weights == "auto":
-        n_clip = int(np.count_nonzero(_looks.clipped(h_n, limit))) if h_n is not None else 0
+        n_clip = int(c_n.sum())
         fit_weights = n_clip >= AUTO_FIT_CLIPPED_CELLS
-        why = (f"look_weights auto: {n_clip} of {int(np.asarray(h_n).size) if h_n is not None else 0} clean cells within "
-               f"{limit:g} dB of full scale (the fit from {AUTO_FIT_CLIPPED_CELLS})")
+        why = (f"look_weights auto: {n_clip} of {c_n.size} clean cells within {limit:g} dB of full scale "
+               f"(the fit from {AUTO_FIT_CLIPPED_CELLS})")
     if fit_weights:
         info["weights"] = ("per detector set, the weight of each detector's term in z: a class-balanced logistic fit "
                            "(weights >= 0) of the injected targets against the clean cells the set fired on"

@@ -62,6 +62,8 @@ MIN_STRATUM_TARGETS = 50
 """Fewest injected targets (and 4 times as many clean cells) on each side of
 ``calibration.clip_headroom_db`` for the clipped places to get their own likelihood ratios
 (:attr:`LookModel.lrs_clipped`); fewer: one table for all."""
+MIN_STRATUM_CELLS = 4 * MIN_STRATUM_TARGETS
+"""Fewest clean cells on each side of ``calibration.clip_headroom_db`` for the same."""
 
 
 def _canonical(detectors: Sequence[str]) -> list[str]:
