@@ -15,6 +15,11 @@ Three sources of contacts:
 A contact matches a target within 3 m; each target matches at most one contact; the rest are
 false alarms. ROC curves sweep the threshold on Bel(T). Writes a Markdown summary, roc.png (and
 with --log the mosaic, belief map and P(y) figures) into --out.
+
+--clutter CSV lists known objects that are not targets (rocks, debris, an earlier survey's
+non-mine-like bottom objects), in the truth file's format with an optional target_like column
+(1/0): the summary then says how many false alarms lie within 3 m of them, how many are second
+contacts on a target, and how many lie on no known object; --log's mosaic shows them.
 """
 
 from __future__ import annotations
@@ -35,6 +40,9 @@ from ..operators.book import read_contacts
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--truth", required=True, metavar="CSV", help="truth targets: lat_deg,lon_deg,shape[,...]")
+    parser.add_argument("--clutter", metavar="CSV",
+                        help="known objects that are not targets: lat_deg,lon_deg,shape[,target_like][,...]; "
+                             "says what the false alarms lie on")
     src = parser.add_mutually_exclusive_group(required=True)
     src.add_argument("--contacts", metavar="FILE", help="contacts as JSON lines (--contacts-out of replay)")
     src.add_argument("--subscribe", metavar="ENDPOINT", help="a live node's PUB endpoint")
@@ -57,6 +65,10 @@ def run(args: argparse.Namespace) -> int:
     crs = settings.recording.crs
     # every input checked before the output folder exists: a failure leaves nothing behind
     read_truth(args.truth)
+    if args.clutter:
+        from ..evaluation.scoring import read_clutter
+
+        read_clutter(args.clutter)
     if args.bel is not None and not 0.0 <= args.bel <= 1.0:
         raise AtrError(f"--bel {args.bel:g}: expected a threshold on Bel(T) in [0, 1]")
     if args.log:
@@ -80,17 +92,21 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _evaluate(args: argparse.Namespace, settings, out: Path) -> int:
-    from ..evaluation.scoring import read_truth, score_contacts
+    from ..evaluation.scoring import read_clutter, read_truth, score_contacts
 
     out.mkdir(parents=True, exist_ok=True)
     bel = args.bel if args.bel is not None else settings.fusion.report_bel
+    clutter = read_clutter(args.clutter) if args.clutter else None
     if args.log:
         from ..evaluation.evaluate import evaluate_log, rows_markdown
         from .replay import build_model
 
         model, online = build_model(settings, args.model, args.online_calibration, deterministic=True)
-        res = evaluate_log(settings, args.log, args.truth, out, model=model, online=online, name=Path(args.log).stem)
+        res = evaluate_log(settings, args.log, args.truth, out, model=model, online=online, name=Path(args.log).stem,
+                           clutter=clutter)
         text = f"# Evaluation of {args.log}\n\n{res.targets} targets, {res.covered_km2:.4f} km² covered.\n\n"
+        if clutter is not None:
+            text += f"The node, as published: {res.stats['node_false_alarm_anatomy_text']}.\n\n"
         text += rows_markdown(res.rows) + "\n\n" + "\n".join(
             f"- claim {k}: **{'holds' if ok else 'does not hold'}** ({why})" for k, (ok, why) in res.claims.items())
         (out / "evaluation.md").write_text(text + "\n")
@@ -102,7 +118,7 @@ def _evaluate(args: argparse.Namespace, settings, out: Path) -> int:
     else:
         contacts = _listen(args.subscribe, args.duration)
     # the same scoring as the demo's node row (one function, atr_node.evaluation.scoring)
-    score = score_contacts(contacts, read_truth(args.truth), bel=bel)
+    score = score_contacts(contacts, read_truth(args.truth), bel=bel, clutter=clutter)
     curve, p, summary = score.curve, score.point, score.summary()
     (out / "evaluation.json").write_text(json.dumps(summary, indent=2))
     try:
@@ -115,6 +131,9 @@ def _evaluate(args: argparse.Namespace, settings, out: Path) -> int:
     print(f"{score.targets} targets, {score.contacts} contacts: at Bel >= {bel:g}, Pd {p.pd:.2f} "
           f"({p.matched} matched), {p.false_alarms} false alarms; best Pd {summary['best_pd']:.2f} "
           f"with {summary['fa_at_best_pd']:g} false alarms")
+    if score.anatomy is not None:
+        line = score.anatomy_line()
+        print(line[:1].upper() + line[1:])
     return 0
 
 

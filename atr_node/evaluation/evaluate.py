@@ -36,7 +36,7 @@ from ..config import Settings
 from ..node.service import write_contacts
 from .methods import SWEEP_FACTORS, Comparison, EvaluationRun, FusionResult, run_pipeline
 from .report import Mosaic, plot_belief, plot_mosaic, plot_roc
-from .scoring import RocCurve, read_truth, score_contacts
+from .scoring import Clutter, RocCurve, read_truth, score_contacts
 
 
 NODE_SOURCE = "node's contacts"
@@ -77,7 +77,11 @@ class MissionResult:
 
 def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Path, out_dir: str | Path, *,
                  model: PerformanceModel, online: Any = None, name: str = "mission",
-                 progress: Callable[[int, int], None] | None = None, figures: bool = True) -> MissionResult:
+                 progress: Callable[[int, int], None] | None = None, figures: bool = True,
+                 clutter: Clutter | None = None) -> MissionResult:
+    """``clutter``: known objects that are not targets (:func:`~.scoring.read_clutter`); the
+    node row then says what its false alarms lie on (``stats["node_false_alarm_anatomy"]``),
+    and the mosaic shows them."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     truth = read_truth(truth_path)
@@ -115,7 +119,7 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     report_bel = settings.fusion.report_bel
 
     # first what the node published, scored as `atr-node evaluate --contacts` scores it
-    node = score_contacts(run.node_contacts, truth, bel=report_bel, name=NODE_SOURCE)
+    node = score_contacts(run.node_contacts, truth, bel=report_bel, name=NODE_SOURCE, clutter=clutter)
     nb = node.curve.best_pd()
     rows = [Row(f"DS ({', '.join(d.upper() for d in settings.detectors.enabled)}): the node, as published",
                 node.point.pd, node.point.false_alarms, node.point.false_alarms / km2,
@@ -146,9 +150,13 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
         figs["roc"] = plot_roc(list(singles.values()) + [ds_nomiss, ds_miss, ds_all, f_paper.curve], [and3, and4, or4],
                                out / "roc.png", covered_km2=km2, title=f"{name}: ROC (paper figure 6)",
                                fused=[node.curve]).name
+        clutter_en = None
+        if clutter is not None and clutter.objects:
+            clutter_en = np.column_stack(run.frame.to_frame(np.array([o.lat_deg for o in clutter.objects]),
+                                                            np.array([o.lon_deg for o in clutter.objects])))
         figs["mosaic"] = plot_mosaic(mosaic, out / "mosaic.png", truth_en=truth_en, contacts=run.node_contacts,
                                      title=f"{name}: mosaic, truth and the node's contacts",
-                                     report_bel=report_bel).name
+                                     report_bel=report_bel, clutter_en=clutter_en).name
         # Bel(T) of all the detectors with missed detections: f_all's grid (the same evidence
         # as the node's, in another detector order)
         figs["belief"] = plot_belief(f_all.grid, out / "belief.png", truth_en=truth_en,
@@ -164,7 +172,10 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
     write_contacts(out / "contacts.jsonl", run.node_contacts)
     result = MissionResult(name, rows, claims, figs, km2, len(truth),
                            stats={**run.stats, "ranking": rank, "node_contacts": len(run.node_contacts),
-                                  "node_live_contacts": node.contacts, "node_vs_comparison": agree},
+                                  "node_live_contacts": node.contacts, "node_vs_comparison": agree,
+                                  **({"node_false_alarm_anatomy": node.summary()["false_alarm_anatomy"],
+                                      "node_false_alarm_anatomy_text": node.anatomy_line()}
+                                     if node.anatomy is not None else {})},
                            run=run, comparison=cmp)
     (out / "result.json").write_text(json.dumps(result.to_dict(), indent=2, default=str))
     return result

@@ -104,8 +104,9 @@ LABEL_FONT_PT = 7.0
 
 
 def plot_mosaic(mosaic: Mosaic, path: str | os.PathLike[str], *, truth_en: np.ndarray, contacts: Sequence[dict],
-                title: str, report_bel: float, max_labels: int = 60) -> Path:
-    """The mosaic with the truth targets and the node's contacts at Bel(T) >= ``report_bel``.
+                title: str, report_bel: float, max_labels: int = 60, clutter_en: np.ndarray | None = None) -> Path:
+    """The mosaic with the truth targets and the node's contacts at Bel(T) >= ``report_bel``
+    (and with ``clutter_en`` the known objects that are not targets, as grey squares).
 
     Contacts matched to a target (ICD section 5) are green, false alarms red; targets that no
     reported contact matches are magenta ("missed"). Labels (``id: Bel``) must stay readable
@@ -132,6 +133,10 @@ def plot_mosaic(mosaic: Mosaic, path: str | os.PathLike[str], *, truth_en: np.nd
     ax.imshow(_display(img), origin="lower", extent=ext, cmap="copper", interpolation="nearest")
     ax.ticklabel_format(useOffset=False, style="plain")  # metres of the frame, not "+4.881e6"
     truth_en = np.asarray(truth_en, dtype=np.float64).reshape(-1, 2)
+    if clutter_en is not None and len(clutter_en):
+        k = np.asarray(clutter_en, dtype=np.float64).reshape(-1, 2)
+        ax.scatter(k[:, 0], k[:, 1], marker="s", s=90, facecolors="none", edgecolors="silver", linewidths=1.0,
+                   label=f"known clutter ({len(k)})")
     live = [c for c in contacts if c["state"] != "withdrawn"]
     hi = [c for c in live if c["bel"] >= report_bel]
     c_en = np.array([(c["east_m"], c["north_m"]) for c in hi]).reshape(-1, 2)

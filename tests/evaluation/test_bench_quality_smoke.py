@@ -7,6 +7,8 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
 TOOLS = Path(__file__).resolve().parents[2] / "tools" / "bench"
 sys.path.insert(0, str(TOOLS))
 
@@ -41,6 +43,19 @@ def test_quality_benchmark_scores_every_method_and_checks(tmp_path):
     assert scene["variant"] == "base" and body["pooled_reliability"]["base"]["scenes"] == 1
     assert (sum(x["contacts"] for x in body["pooled_reliability"]["base"]["bins"])
             == sum(x["contacts"] for x in ds["reliability"]))
+    # what the false alarms lie on: every one counted once, as many as the ROC and the
+    # operating point count
+    for name in ("DS look (default)", "DS paper (prior 0.1)"):
+        f = scene["methods"][name]
+        op = f["fa_anatomy"]["op"]
+        assert op["false_alarms"] == f["op_fa"] == sum(op[k] for k in bench_quality.FA_KINDS)
+        if "0.8" in f["fa_anatomy"]:
+            a = f["fa_anatomy"]["0.8"]
+            assert a["false_alarms"] == f["fa_at_0.8"] == sum(a[k] for k in bench_quality.FA_KINDS)
+        else:
+            assert f["fa_at_0.8"] == math.inf
+    pooled = body["pooled_fa_anatomy"]["base / DS look (default)"]["op"]
+    assert pooled == {k: ds["fa_anatomy"]["op"][k] for k in pooled}
 
 
 def test_quality_benchmark_scores_a_real_recording_for_every_method(real_data, tmp_path):
@@ -104,6 +119,22 @@ def test_fewer_false_alarms_is_judged_at_the_baseline_s_own_pd():
 def _rel_scene(variant: str, rows: list[tuple[str, int, int]]) -> dict:
     return {"variant": variant, "methods": {"DS look (default)": {"reliability": [
         {"bel": b, "contacts": n, "targets": round(k / n, 3), "on_target": k} for b, n, k in rows]}}}
+
+
+def test_the_benchmark_reads_the_anatomy_at_the_roc_s_pd_0_8_point():
+    """The threshold read at a Pd is the curve's point with the fewest false alarms there, so
+    the anatomy there counts the false alarms ``fa_at_pd`` gives."""
+    from atr_node.evaluation.scoring import fa_anatomy, roc
+
+    truth = np.array([[0.0, 0.0], [100.0, 0.0]])
+    contacts = np.array([[0.5, 0.0], [-1.0, 1.0], [100.0, 1.0], [50.0, 51.0], [200.0, 200.0]])
+    scores = np.array([0.9, 0.8, 0.7, 0.95, 0.5])
+    curve = roc("x", contacts, scores, truth)
+    thr = bench_quality._threshold_at_pd(curve, 1.0)
+    assert thr == 0.7
+    a = fa_anatomy(contacts, scores, truth, threshold=thr, one_leg_en=np.array([[50.0, 50.0]]))
+    assert a["false_alarms"] == curve.fa_at_pd(1.0) == 2 and a["second_on_target"] == 1 and a["one_leg_object"] == 1
+    assert bench_quality._threshold_at_pd(roc("y", contacts[:1], scores[:1], truth), 1.0) is None
 
 
 def test_pooled_reliability_sums_the_scenes_of_a_variant():
@@ -244,3 +275,43 @@ def test_one_run_per_folder_and_only_finished_scenes_are_reused(tmp_path, capsys
     assert err.count("\n") == 1 and "sand-8-2x60" in err and "not a folder" in err
     assert not (tmp_path / "q8.json").exists()
     assert bench_quality.main(args + ["--seeds", "x7"]) == 2 and "expected comma-separated integers" in capsys.readouterr().err
+
+
+def test_peakedness_against_a_direct_sort():
+    import rock_cue
+
+    rng = np.random.default_rng(3)
+    img = rng.exponential(1.0, (60, 80))
+    img[30, 40] = 50.0  # a glint
+    img[5, 5] = np.nan
+    row, col, dx, dr = 30, 40, 0.1, 0.1
+    h, w = 15, 20  # 1.5 m and 2 m of 0.1 m pixels
+    win = img[row - h:row + h + 1, col - w:col + w + 1].ravel()
+    top = np.sort(win[np.isfinite(win)])[::-1]
+    want = top[:5].mean() / top[:50].mean()
+    assert math.isclose(rock_cue.peakedness(img, row, col, dx_m=dx, dr_m=dr), want, rel_tol=1e-12)
+    # at the image's edge the window is cut, not wrapped; too few pixels give NaN
+    edge = img[0:16, 0:21].ravel()
+    top = np.sort(edge[np.isfinite(edge)])[::-1]
+    assert math.isclose(rock_cue.peakedness(img, 0, 0, dx_m=dx, dr_m=dr), top[:5].mean() / top[:50].mean(),
+                        rel_tol=1e-12)
+    assert math.isnan(rock_cue.peakedness(np.full((5, 5), 1.0), 2, 2, dx_m=dx, dr_m=dr))
+    # a spread echo (a flat patch) is less peaked than the glint
+    flat = np.ones((60, 80))
+    flat[25:36, 30:51] = 10.0
+    assert rock_cue.peakedness(flat, row, col, dx_m=dx, dr_m=dr) == 1.0
+    assert rock_cue.peakedness(img, row, col, dx_m=dx, dr_m=dr) > 2.0
+
+
+def test_rock_cue_part_smoke(tmp_path, capsys):
+    rc = bench_quality.main(["rock-cue", "--quick", "--online-calibration", "off", "--out", str(tmp_path / "s"),
+                             "--json", str(tmp_path / "r.json")])
+    assert rc == 0
+    (scene,) = json.loads((tmp_path / "r.json").read_text())["scenes"]
+    assert scene["contacts"] > 0 and len(scene["bel"]) == 2
+    assert scene["n"]["injected"] > 0 and scene["median_cue"]["injected"] > scene["median_cue"]["seabed"]
+    auc = scene["auc_targets_vs_rocks_bel08"]
+    assert math.isnan(auc) or 0.0 <= auc <= 1.0
+    assert "| sand-201-2x60 |" in capsys.readouterr().out
+    # the held-out seeds never measure an idea
+    assert bench_quality.main(["rock-cue", "--seeds", "101", "--out", str(tmp_path / "h")]) == 2

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from atr_node.calibration.model import PerformanceModel
 from atr_node.errors import AtrError
 from atr_node.evaluation.evaluate import evaluate_log
-from atr_node.evaluation.scoring import local_en, match, read_truth, roc
+from atr_node.evaluation.scoring import local_en, match, read_clutter, read_truth, roc
 from atr_node.fusion.baselines import leader_groups
 
 def brute_force_matches(c, t, r):
@@ -90,7 +90,16 @@ def test_truth_file_errors(tmp_path):
 
 def test_evaluate_log_compares_every_method_on_the_same_detections(small_mission, tmp_path):
     s, _, files = small_mission
-    res = evaluate_log(s, files.atrlog, files.truth, tmp_path, model=PerformanceModel.shipped(), name="small")
+    # known clutter (here: a point 10 m north of each target): the node row says what its
+    # false alarms lie on, every one counted once
+    k = tmp_path / "clutter.csv"
+    k.write_text("lat_deg,lon_deg,shape,target_like\n" + "".join(
+        f"{t.lat_deg + 10.0 / 111195.0:.9f},{t.lon_deg:.9f},rock,{i % 2}\n" for i, t in enumerate(read_truth(files.truth))))
+    res = evaluate_log(s, files.atrlog, files.truth, tmp_path, model=PerformanceModel.shipped(), name="small",
+                       clutter=read_clutter(k))
+    anatomy = res.stats["node_false_alarm_anatomy"]
+    assert sum(anatomy.values()) == res.rows[0].false_alarms
+    assert f"of the {res.rows[0].false_alarms} false alarms" in res.stats["node_false_alarm_anatomy_text"]
     names = [r.method for r in res.rows]
     assert sum(n.endswith("alone") for n in names) == 4
     assert any(n.startswith("AND") for n in names) and any(n.startswith("OR") for n in names)

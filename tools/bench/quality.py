@@ -17,7 +17,11 @@ reliability table (Bel bin -> share of contacts that are targets); one-leg objec
 report_bel, all of them and those another look covered at Pd >= 0.8 as the node saw it
 (:func:`covering_legs`; the issue's criterion counts these); targets seen on >= 2 looks above
 report_bel; contacts without a detection; DS look's false alarms on its ROC at each baseline's
-own Pd (``fa_at_pd_of``: the issue's "fewer false alarms at equal Pd", :func:`checks`).
+own Pd (``fa_at_pd_of``: the issue's "fewer false alarms at equal Pd", :func:`checks`); what
+each DS form's false alarms lie on, at Pd 0.8 on its ROC and at the operating point
+(``fa_anatomy``: a second contact on a target, a one-leg object, a target-like rock, another
+rock, the seabed; :func:`atr_node.evaluation.scoring.fa_anatomy`, the generator's rocks as the
+clutter).
 
 Then the shared real side-scan recordings (``--recordings``; they have no ground truth): per
 method the contacts it publishes, the objects read by eye it finds (the marks of
@@ -52,9 +56,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import harness  # noqa: E402  (tools/bench/harness.py: repeats, warm-up, statistics, JSON)
+from atr_node.evaluation.scoring import FA_KINDS, near_any  # noqa: E402
 
 BEL_BINS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.9, 0.99, 0.999, 1.0 + 1e-12)
 SEEDS = (101, 102, 103)
@@ -89,13 +93,8 @@ def _read_points(path: Path, frame) -> tuple[np.ndarray, list[dict]]:
     return np.column_stack(frame.to_frame(lat, lon)), rows
 
 
-def _near(points: np.ndarray, others: np.ndarray, radius_m: float = 3.0) -> np.ndarray:
-    """Per point (n, 2), whether some of ``others`` (k, 2) lies within ``radius_m``."""
-    others = np.asarray(others, dtype=np.float64).reshape(-1, 2)
-    if not len(points) or not len(others):
-        return np.zeros(len(points), dtype=bool)
-    return cKDTree(others).query(np.asarray(points, dtype=np.float64).reshape(-1, 2),
-                                 distance_upper_bound=radius_m)[0] <= radius_m
+_near = near_any
+"""Per point, whether another lies within 3 m (:func:`atr_node.evaluation.scoring.near_any`)."""
 
 
 ONE_LEG_PD = 0.8
@@ -135,6 +134,13 @@ def covering_pd(run, point_en, detectors, *, max_off_m: float = 1.0) -> dict[int
               else max(float(u.model.pd(d, r)) for d in detectors))
         legs[u.leg] = max(pd, legs.get(u.leg, -math.inf))
     return legs
+
+
+def _threshold_at_pd(curve, pd: float) -> float | None:
+    """The score threshold of the curve's point with the fewest false alarms at Pd >= ``pd``
+    (the point ``fa_at_pd`` reads; None when the curve never reaches it)."""
+    pts = [p for p in curve.points if p.pd >= pd - 1e-12 and math.isfinite(p.threshold)]
+    return min(pts, key=lambda p: (p.false_alarms, -p.threshold)).threshold if pts else None
 
 
 def _en(contacts) -> np.ndarray:
@@ -189,6 +195,21 @@ def pooled_reliability(results: list[dict]) -> dict[str, dict]:
     return out
 
 
+def pooled_fa_anatomy(results: list[dict]) -> dict[str, dict]:
+    """:func:`fa_anatomy` summed over the scenes of each variant, per DS form and point:
+    ``{"base / DS look (default)": {"Pd 0.8": {...}, "op": {...}}, ...}`` (a scene whose ROC
+    never reaches Pd 0.8 adds nothing there)."""
+    out: dict[str, dict] = {}
+    for r in results:
+        for name, f in r["methods"].items():
+            for at, a in f.get("fa_anatomy", {}).items():
+                g = out.setdefault(f"{r.get('variant', 'base')} / {name}", {}).setdefault(
+                    "Pd 0.8" if at == "0.8" else "op", dict.fromkeys(("false_alarms",) + FA_KINDS, 0))
+                for k in g:
+                    g[k] += int(a[k])
+    return out
+
+
 def _curve_figures(curve) -> dict:
     pdmax = curve.best_pd()
     f = {"pd_max": round(pdmax, 3), "fa_at_max": curve.fa_at_pd(pdmax) if pdmax > 0 else 0.0}
@@ -211,7 +232,7 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
     """Every method's figures on one scene (see the module docstring)."""
     from atr_node.commands.replay import build_model
     from atr_node.evaluation.methods import Comparison, fuse, node_like_contacts, _records
-    from atr_node.evaluation.scoring import operating_point, read_truth
+    from atr_node.evaluation.scoring import TARGET_LIKE_VALUES, fa_anatomy, operating_point, read_truth
     from atr_node.io.atrlog import AtrLogReader
 
     model, calibrator = build_model(settings, None, online, deterministic=True)
@@ -231,6 +252,9 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
     # generator's covered_by_legs counts 5-60 m, where the node may see nothing (first return)
     judged = np.array([bool(covering_legs(run, p, en) - {int(r["shown_on_leg"])}) for p, r in zip(one_leg, one_leg_rows)],
                       dtype=bool).reshape(-1)
+    rocks, rock_rows = _read_points(scene_dir / "clutter.csv", run.frame)
+    rock_like = np.array([TARGET_LIKE_VALUES.get(str(r.get("target_like") or "").strip().lower(), False)
+                          for r in rock_rows], dtype=bool).reshape(-1)
     t_en, t_rows = _read_points(scene_dir / "truth.csv", run.frame)
     multi = np.array([int(r.get("looks") or 0) >= 2 for r in t_rows], dtype=bool)
     ds_curve = None
@@ -246,6 +270,13 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
         op = operating_point(name, at_en, comp.truth_en)
         p = op.points[0]
         fig = _curve_figures(curve)
+        anatomy = {}
+        for label, thr in (("0.8", _threshold_at_pd(curve, 0.8)), ("op", report)):
+            if thr is not None:
+                src = contacts if label != "op" else at_node
+                anatomy[label] = fa_anatomy(_en(src), [c.bel for c in src], comp.truth_en, threshold=thr,
+                                            clutter_en=rocks, clutter_target_like=rock_like, one_leg_en=one_leg)
+        fig["fa_anatomy"] = anatomy
         fig.update({"op_pd": round(p.pd, 3), "op_fa": p.false_alarms,
                     "roc_fa_at_op_pd": curve.fa_at_pd(p.pd) if p.pd > 0 else 0.0,
                     "share_bel_999": _share_999(at_node),
@@ -432,6 +463,21 @@ def markdown(results: list[dict]) -> str:
             rel = r["methods"]["DS look (default)"]["reliability"]
             lines.append(f"- {r['scene']}: " + "; ".join(f"{x['bel']} {x['contacts']}, {x['targets']:.2f}" for x in rel))
         lines.append("")
+        lines.append("What the false alarms lie on (within 3 m; the generator's truth, its rocks as the clutter): at Pd 0.8 "
+                     "on each DS form's ROC, and at the operating point (Bel >= report_bel)")
+        lines.append("")
+        lines.append("| scene | method | at | false alarms | " + " | ".join(k.replace("_", " ") for k in FA_KINDS) + " |")
+        lines.append("|---|---|---|---:|" + "---:|" * len(FA_KINDS))
+        for r in results:
+            for name, f in r["methods"].items():
+                for at, a in f.get("fa_anatomy", {}).items():
+                    lines.append(f"| {r['scene']} | {name} | {'Pd 0.8' if at == '0.8' else 'op'} | {a['false_alarms']} | "
+                                 + " | ".join(str(a[k]) for k in FA_KINDS) + " |")
+        for name, g in pooled_fa_anatomy(results).items():
+            lines.append(f"- pooled, {name}: " + "; ".join(
+                f"{at}: {a['false_alarms']} false alarms, " + ", ".join(f"{k.replace('_', ' ')} {a[k]}" for k in FA_KINDS)
+                for at, a in g.items()))
+        lines.append("")
         lines.append("Reliability pooled over each variant's scenes (DS look): Bel bin -> contacts, share on a target "
                      "[95 % Wilson interval]")
         for name, g in pooled_reliability(results).items():
@@ -590,6 +636,7 @@ def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv, 
             _write_whole(Path(args.json), json.dumps({"command": "python tools/bench/quality.py "
                                                       + " ".join(argv or sys.argv[1:]),
                                                       "scenes": results, "pooled_reliability": pooled_reliability(results),
+                                                      "pooled_fa_anatomy": pooled_fa_anatomy(results),
                                                       "recordings": recordings},
                                                      indent=1, default=float) + "\n")
     except OSError as exc:
@@ -759,7 +806,14 @@ def main_speed_options(argv: list[str] | None = None) -> int:
     return 0
 
 
-PARTS = {"heldout": main_heldout, "speed-options": main_speed_options}
+def main_rock_cue(argv: list[str] | None = None) -> int:
+    """Part "rock-cue" (tools/bench/rock_cue.py): a cue against rocks, on development seeds."""
+    import rock_cue
+
+    return rock_cue.main(argv)
+
+
+PARTS = {"heldout": main_heldout, "speed-options": main_speed_options, "rock-cue": main_rock_cue}
 
 
 def main(argv: list[str] | None = None) -> int:  # a part, every part, or the first with options
