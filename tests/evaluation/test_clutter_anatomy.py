@@ -7,6 +7,7 @@ import json
 import math
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -15,6 +16,8 @@ from atr_node.errors import AtrError
 from atr_node.evaluation.scoring import (FA_KINDS, EARTH_RADIUS_M, fa_anatomy, read_clutter, read_truth,
                                          score_contacts)
 from atr_node.node.wire import contact_message
+
+from ..waiting import WAIT_S
 
 TRUTH = np.array([[0.0, 0.0], [100.0, 0.0]])
 CLUTTER = np.array([[0.0, 50.0], [0.0, 80.0]])
@@ -138,3 +141,36 @@ def test_a_clutter_file_without_target_like_marks_nothing_target_like(tmp_path):
     p.write_text("lat_deg,lon_deg\n43.0,5.0\n")
     with pytest.raises(AtrError, match="clutter file .*header lacks"):
         read_clutter(p)
+
+
+def test_evaluate_subscribe_with_clutter_scores_a_live_node_s_contacts(tmp_path):
+    """``--subscribe``: the contacts of a PUB socket on loopback (published again and again until
+    the command ends: a subscriber joins late), scored and broken down as ``--contacts`` does."""
+    from atr_node.node.publisher import Publisher
+
+    truth, clutter, contacts = _write_scene(tmp_path)
+    msgs = [json.loads(x) for x in contacts.read_text().splitlines()]
+    pub = Publisher("tcp://127.0.0.1:*")
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "atr_node", "evaluate", "--truth", str(truth), "--subscribe",
+                                 pub.endpoint, "--duration", "3", "--clutter", str(clutter), "--bel", "0.5",
+                                 "--out", str(tmp_path / "ev")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + WAIT_S  # a hang guard, not a timing assertion
+        while proc.poll() is None and time.monotonic() < deadline:
+            for m in msgs:
+                pub.contact(m)
+            try:
+                proc.wait(timeout=0.1)
+            except subprocess.TimeoutExpired:
+                pass
+        if proc.poll() is None:
+            proc.kill()
+        out, err = proc.communicate(timeout=WAIT_S)
+    finally:
+        pub.close()
+    assert proc.returncode == 0, err
+    summary = json.loads((tmp_path / "ev" / "evaluation.json").read_text())
+    assert summary["contacts"] == len(msgs) and summary["false_alarms"] == 6
+    assert summary["false_alarm_anatomy"] == {"second_on_target": 1, "target_like_clutter": 1, "clutter": 1,
+                                              "seabed": 3}
+    assert "2 on known clutter" in out
