@@ -45,6 +45,18 @@ class TileGeometry:
             np.full(c.shape, self.ranges_m[0])
         return self.east_m[i] + r * self.ue[i], self.north_m[i] + r * self.un[i]
 
+    def locate(self, east_m: float, north_m: float) -> tuple[int, float, float]:
+        """The inverse of :meth:`world` for one point: ``(row, range_m, off_m)``, the ping whose
+        across-track line passes nearest the point, the ground range along that line (not
+        clipped to the swath: compare with ``ranges_m``) and the point's distance from the line,
+        metres in the frame. The across-track vector carries the grid scale factor ``k``, so the
+        range is the dot product over ``k^2``."""
+        de, dn = float(east_m) - self.east_m, float(north_m) - self.north_m
+        across = (de * self.ue + dn * self.un) / (self.ue * self.ue + self.un * self.un)
+        off = np.hypot(de - across * self.ue, dn - across * self.un)
+        i = int(np.argmin(off))
+        return i, float(across[i]), float(off[i])
+
     def world_grid(self) -> tuple[np.ndarray, np.ndarray]:
         """(east_m, north_m) of every pixel, each (rows, cols) float64."""
         e = self.east_m[:, None] + self.ranges_m[None, :] * self.ue[:, None]

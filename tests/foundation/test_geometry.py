@@ -77,6 +77,28 @@ def test_georef_matches_geodesic(kind, heading, side):
     assert err.max() < 0.005, err.max()  # 5 mm at 150 m range
 
 
+@pytest.mark.parametrize("kind", ["utm", "ltp"])
+@pytest.mark.parametrize("side", ["port", "stbd"])
+def test_locate_inverts_world(kind, side):
+    """locate(world(i, j)) gives back the ping and the column's range (scale factor k != 1 in UTM
+    100 km off the central meridian's frame origin); a point off the lines says how far."""
+    lat, lon = LAT0 + 0.05, LON0 + 1.3
+    tile = ground_tile(side, 37.0, rows=5, lat=lat, lon=lon)
+    # pings 2 m apart along the heading, so each ping's line is its own
+    lon2, lat2, _ = GEOD.fwd(np.full(5, lon), np.full(5, lat), np.full(5, 37.0), 2.0 * np.arange(5))
+    tile = tile.replace(nav=TileNav(lat2, lon2, tile.nav.heading_deg, tile.nav.altitude_m))
+    g = tile_geometry(tile, MissionFrame(kind, LAT0, LON0))
+    for i, j in ((0, 0), (2, 50), (4, 100)):
+        e, n = g.world(i, j)
+        row, r, off = g.locate(float(e), float(n))
+        assert row == i and abs(r - g.ranges_m[j]) < 1e-6 and off < 1e-6
+    # 0.7 m along-track of ping 2's line at column 40: ping 2, the same range, 0.7 m off
+    e, n = g.world(2, 40)
+    a = g.heading_grid_rad[2]  # along-track in the frame: the grid heading
+    row, r, off = g.locate(float(e) + 0.7 * np.sin(a), float(n) + 0.7 * np.cos(a))
+    assert row == 2 and abs(r - g.ranges_m[40]) < 0.01 and abs(off - 0.7) < 0.01
+
+
 def test_frame_round_trip_and_utm_zone():
     for kind in ("utm", "ltp"):
         f = MissionFrame(kind, LAT0, LON0)

@@ -117,14 +117,9 @@ def covering_pd(run, point_en, detectors, *, max_off_m: float = 1.0) -> dict[int
     pe, pn = (float(v) for v in point_en)
     legs: dict[int, float] = {}
     for u in run.units:
-        g = u.geometry
-        de, dn = pe - g.east_m, pn - g.north_m
-        across = de * g.ue + dn * g.un
-        off = np.hypot(de - across * g.ue, dn - across * g.un)
-        i = int(np.argmin(off))
-        r = float(across[i])
+        i, r, off = u.geometry.locate(pe, pn)
         ranges = np.asarray(u.ranges_m, dtype=np.float64)
-        if off[i] > max_off_m or not ranges[0] <= r <= ranges[-1]:
+        if off > max_off_m or not ranges[0] <= r <= ranges[-1]:
             continue
         j = int(np.argmin(np.abs(ranges - r)))
         if not any(u.result.covered(d)[i, j] for d in detectors):
@@ -232,7 +227,7 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
     """Every method's figures on one scene (see the module docstring)."""
     from atr_node.commands.replay import build_model
     from atr_node.evaluation.methods import Comparison, fuse, node_like_contacts, _records
-    from atr_node.evaluation.scoring import TARGET_LIKE_VALUES, fa_anatomy, operating_point, read_truth
+    from atr_node.evaluation.scoring import fa_anatomy, operating_point, read_clutter, read_truth
     from atr_node.io.atrlog import AtrLogReader
 
     model, calibrator = build_model(settings, None, online, deterministic=True)
@@ -252,9 +247,9 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
     # generator's covered_by_legs counts 5-60 m, where the node may see nothing (first return)
     judged = np.array([bool(covering_legs(run, p, en) - {int(r["shown_on_leg"])}) for p, r in zip(one_leg, one_leg_rows)],
                       dtype=bool).reshape(-1)
-    rocks, rock_rows = _read_points(scene_dir / "clutter.csv", run.frame)
-    rock_like = np.array([TARGET_LIKE_VALUES.get(str(r.get("target_like") or "").strip().lower(), False)
-                          for r in rock_rows], dtype=bool).reshape(-1)
+    rocks, _ = _read_points(scene_dir / "clutter.csv", run.frame)
+    rock_like = (read_clutter(scene_dir / "clutter.csv").target_like if (scene_dir / "clutter.csv").is_file()
+                 else np.zeros(0, dtype=bool))
     t_en, t_rows = _read_points(scene_dir / "truth.csv", run.frame)
     multi = np.array([int(r.get("looks") or 0) >= 2 for r in t_rows], dtype=bool)
     ds_curve = None

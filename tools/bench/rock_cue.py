@@ -67,12 +67,8 @@ def _views(units, point) -> list[tuple[int, int, int]]:
     with the point inside its swath."""
     out = []
     for k, (pix, g) in enumerate(units):
-        de, dn = point[0] - g.east_m, point[1] - g.north_m
-        across = de * g.ue + dn * g.un
-        off = np.hypot(de - across * g.ue, dn - across * g.un)
-        i = int(np.argmin(off))
-        r = float(across[i])
-        if off[i] <= 0.3 and g.ranges_m[0] <= r <= g.ranges_m[-1]:
+        i, r, off = g.locate(*point)
+        if off <= 0.3 and g.ranges_m[0] <= r <= g.ranges_m[-1]:
             out.append((k, i, int(np.argmin(np.abs(g.ranges_m - r)))))
     return out
 
