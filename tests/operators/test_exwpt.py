@@ -64,6 +64,27 @@ def expected_seconds(t: float) -> float:
     return float(ms % 86400)
 
 
+def _full_sentence_length(cat: int, lon: float, lat: float, cid: int, state: str, bel: float) -> int:
+    """Characters of the sentence with the full description and no depth, counted by hand:
+    '$', the fields between commas, '*' and two checksum digits, CR LF (IEC 61162-1: at most 82)."""
+    fields = ["EXWPT", str(cat), "hh:mm:ss.sss", f"{lon:.7f}", f"{lat:.7f}", "", "M", f"ATR {cid} {state} bel {bel:.3f}"]
+    return 1 + len(",".join(fields)) + 3 + 2
+
+
+def test_the_full_description_gives_way_only_when_it_would_not_fit():
+    """A 4-digit id, 'withdrawn' and a 3-digit longitude make 83 characters in full: the short
+    form (hypothesis found this case; the test used to expect the full form for every id
+    below 10^4)."""
+    c = contact(1000, state="withdrawn", lat=-10.0, lon=-100.0, bel=0.125, t=0.0)
+    assert _full_sentence_length(0, -100.0, -10.0, 1000, "withdrawn", 0.125) == 83
+    d = parse_exwpt(format_exwpt(c, category=0))
+    assert (d["id"], d["state"]) == (1000, "withdrawn") and abs(d["bel"] - 0.125) <= 5e-3 + 1e-12  # 2 decimals
+    assert len(format_exwpt(contact(1000, state="update", lat=-10.0, lon=-100.0, bel=0.125, t=0.0),
+                            category=0)) == _full_sentence_length(0, -100.0, -10.0, 1000, "update", 0.125) == 80
+    assert parse_exwpt(format_exwpt(contact(1000, state="update", lat=-10.0, lon=-100.0, bel=0.125, t=0.0),
+                                    category=0))["bel"] == 0.125
+
+
 def test_sentence_fields():
     c = contact(12, lat=50.334671400393564, lon=-4.1486191821828067, bel=0.87345,
                 t=datetime(2023, 7, 1, 15, 30, 30, tzinfo=timezone.utc).timestamp())
@@ -85,7 +106,7 @@ def test_any_contact_gives_a_valid_sentence(lat, lon, bel, t, cid, state, depth,
     assert abs(d["lat"] - lat) <= 0.5e-7 + 1e-12 and abs(d["lon"] - lon) <= 0.5e-7 + 1e-12
     assert d["id"] == cid and d["category"] == cat
     assert d["state"] in (state, None) and (d["bel"] is None or abs(d["bel"] - bel) <= 5e-3 + 1e-12)
-    if cid < 10**4 and depth is None:  # the full description whenever it fits
+    if depth is None and _full_sentence_length(cat, lon, lat, cid, state, bel) <= 82:  # the full description whenever it fits
         assert d["state"] == state and abs(d["bel"] - bel) <= 5e-4 + 1e-12  # a half rounds either way
     assert d["seconds_of_day"] == pytest.approx(expected_seconds(t), abs=1e-9)
     assert d["depth"] is None if depth is None else abs(d["depth"] + depth) <= 0.05 + 1e-9  # a half rounds either way
