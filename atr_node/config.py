@@ -172,9 +172,26 @@ class DetectorSettings:
     template lengths, at most ``max_object_length_m``, no shadow at the coarse scale: a rock
     pile, a mound) gives one look per unit, at its strongest place, not one per rock. About half
     the false alarms, but a target in a patch with a stronger rock is lost (docs/detectors.md)."""
+    relocate: tuple[str, ...] = ("lac",)
+    """Detectors whose detections are placed at the matched filter's peak within their template
+    window instead of at their own score's peak (when ``mf`` is enabled): the lacunarity is a
+    texture statistic of one window and peaks up to a window's length off the object's
+    echo/shadow boundary, which the matched filter marks (docs/detectors.md, "Where a detection
+    is placed"). ``[]``: every detector at its own peak, as before."""
+    relocate_headroom_db: float = 10.0
+    """``relocate`` applies where the seabed's mean intensity lies at least this many dB below
+    the recording's full scale (float data: always): where the recording clips, the clipped
+    echo places the lacunarity as near as the matched filter does, and moving it cost targets
+    on the development seeds' 8-bit renderings (as ``calibration.clip_headroom_db``)."""
 
     def __post_init__(self) -> None:
         bad = [d for d in self.enabled if d not in DETECTOR_NAMES]
+        moved = [d for d in self.relocate if d not in DETECTOR_NAMES or d == "mf"]
+        _check(not moved, "detectors.relocate",
+               f"unknown detector(s) {moved}; expected some of {[d for d in DETECTOR_NAMES if d != 'mf']} "
+               "(the matched filter places the others)")
+        _check(len(set(self.relocate)) == len(self.relocate), "detectors.relocate", "lists a detector twice")
+        _check(not math.isnan(self.relocate_headroom_db), "detectors.relocate_headroom_db", "must be a number of dB")
         _check(not bad, "detectors.enabled", f"unknown detector(s) {bad}; expected some of {list(DETECTOR_NAMES)}")
         _check(len(set(self.enabled)) == len(self.enabled), "detectors.enabled", "lists a detector twice")
         _check(self.background_forgetting == 0.8, "detectors.background_forgetting",

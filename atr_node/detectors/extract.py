@@ -200,3 +200,44 @@ def _line_map(idx: np.ndarray, pos: np.ndarray, size: int) -> np.ndarray:
     sep = np.setdiff1d(np.arange(size), pos, assume_unique=True)
     out[sep] = out[sep - 1] + 1  # a separator always follows a kept line
     return out
+
+
+def place_at_peak(found: list[Detection], reference: np.ndarray, *, row0: int, length_px: int, echo_px: int,
+                  shadow_px: np.ndarray, range0_m: float, dr_m: float) -> list[Detection]:
+    """``found`` with each point detection moved to the peak of ``reference`` (another
+    detector's score map, the matched filter's) within its template window: rows
+    ``[i + row0, i + row0 + length_px)``, columns ``[j - echo_px, j + shadow_px[j])``, clipped
+    to the map (``detectors.relocate``, docs/detectors.md "Where a detection is placed").
+
+    Only the place moves (``row``, ``col``, ``range_m``); the score, extent and joint responses
+    stay those of the detection. A detection stays where it is when the window holds no finite
+    reference score or its peak is not positive (no echo brighter than its shadow), and an
+    extended object (``length_m`` set) keeps its centre. Ties: the first pixel in row-major order.
+    """
+    if not found:
+        return found
+    import dataclasses
+
+    ref = np.asarray(reference)
+    rows, cols = ref.shape
+    out = []
+    for x in found:
+        if x.length_m is not None:
+            out.append(x)
+            continue
+        i, j = int(x.row), min(max(int(x.col), 0), cols - 1)
+        r0, r1 = max(0, i + row0), min(rows, i + row0 + length_px)
+        c0, c1 = max(0, j - echo_px), min(cols, j + int(shadow_px[j]))
+        w = ref[r0:r1, c0:c1] if r0 < r1 and c0 < c1 else ref[:0, :0]
+        finite = np.isfinite(w)
+        if not finite.any():
+            out.append(x)
+            continue
+        k = int(np.argmax(np.where(finite, w, -np.inf)))  # argmax: the first of equal maxima
+        if not float(w.flat[k]) > 0.0:
+            out.append(x)
+            continue
+        dr, dc = divmod(k, w.shape[1])
+        col = c0 + dc
+        out.append(dataclasses.replace(x, row=r0 + dr, col=col, range_m=float(range0_m + col * dr_m)))
+    return out

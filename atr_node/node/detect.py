@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from ..config import DetectorSettings, TemplateSettings
-from ..detectors import Detection, find_detections, score_strip
+from ..detectors import Detection, find_detections, place_at_peak, score_strip
 from ..detectors.objects import find_objects, group_detections
 from ..detectors.sat import Workspace
 
@@ -109,10 +109,34 @@ def detect(job: DetectJob, workspace: Workspace | None = None) -> DetectResult:
                                 patches=ds.patch_one_look)
 
     joints: dict = {}  # one window read per place and detector, whichever detector found it
+    moved = set(ds.relocate) if "mf" in scores else set()
+
+    def placed(d: str, found: list[Detection]) -> list[Detection]:
+        # after the joint responses are read at the detector's own peak: the look's score
+        # stays the detector's, only its place moves to the matched filter's peak
+        # where the recording clips (the seabed within relocate_headroom_db of full scale) the
+        # detection stays: there the clipped echo's plateau places the lacunarity as near as
+        # the matched filter does, and moving it cost targets (docs/detectors.md)
+        if d not in moved or not found:
+            return found
+        g = _geometry(job, joints)
+        head = _headroom(job, joints)
+        cols = head.size
+        free = [i for i, x in enumerate(found)
+                if not head[min(max(int(x.col), 0), cols - 1)] < ds.relocate_headroom_db]
+        if not free:
+            return found
+        out = list(found)
+        for i, x in zip(free, place_at_peak([found[i] for i in free], scores["mf"], row0=g.row0,
+                                            length_px=g.length_px, echo_px=g.echo_px, shadow_px=g.shadow_px,
+                                            range0_m=job.range0_m, dr_m=job.dr_m)):
+            out[i] = x
+        return out
+
     for d in job.enabled:
-        dets[d] = with_joint(grouped(raw[d, None]), scores, job, joints)
+        dets[d] = placed(d, with_joint(grouped(raw[d, None]), scores, job, joints))
         if sweep is not None:
-            sweep[d] = {float(tau): grouped(raw[d, tau]) for tau in job.sweep.get(d, ())}
+            sweep[d] = {float(tau): placed(d, grouped(raw[d, tau])) for tau in job.sweep.get(d, ())}
     return DetectResult(job.key, shape, covered, dets, time.perf_counter() - t0, sweep)
 
 
@@ -128,18 +152,12 @@ def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: Detec
         return found
     import dataclasses
 
-    from ..calibration.looks import headroom_db
     from ..calibration.responses import window_max
-    from ..detectors.windows import window_geometry
 
     cache = {} if cache is None else cache
     cols = job.pixels.shape[1]
-    if "geometry" not in cache:
-        ranges = job.range0_m + job.dr_m * np.arange(cols, dtype=np.float64)
-        cache["geometry"] = window_geometry(ranges, template=job.template, dr_m=job.dr_m, dx_m=job.dx_m,
-                                            altitude_m=job.altitude_m)
-        cache["headroom"] = headroom_db(job.full_scale, job.background)
-    geom, head = cache["geometry"], cache["headroom"]
+    geom = _geometry(job, cache)
+    head = _headroom(job, cache)
     out = []
     for x in found:
         key = (int(x.row), int(x.col), x.length_m)
@@ -162,6 +180,28 @@ def with_joint(found: list[Detection], scores: dict[str, np.ndarray], job: Detec
         cache[key] = joint
         out.append(dataclasses.replace(x, joint=joint, headroom_db=float(head[j])))
     return out
+
+
+def _geometry(job: DetectJob, cache: dict):
+    """The template windows of the unit's columns, computed once per unit (in ``cache``)."""
+    if "geometry" not in cache:
+        from ..detectors.windows import window_geometry
+
+        ranges = job.range0_m + job.dr_m * np.arange(job.pixels.shape[1], dtype=np.float64)
+        cache["geometry"] = window_geometry(ranges, template=job.template, dr_m=job.dr_m, dx_m=job.dx_m,
+                                            altitude_m=job.altitude_m)
+    return cache["geometry"]
+
+
+def _headroom(job: DetectJob, cache: dict) -> np.ndarray:
+    """Per column, dB from the seabed's mean intensity to the recording's full scale (inf:
+    unknown or float data), computed once per unit (in ``cache``)."""
+    if "headroom" not in cache:
+        from ..calibration.looks import headroom_db
+
+        cache["headroom"] = np.broadcast_to(np.asarray(headroom_db(job.full_scale, job.background), dtype=np.float64),
+                                            (job.pixels.shape[1],))
+    return cache["headroom"]
 
 
 _WORKSPACE = Workspace()

@@ -22,7 +22,9 @@ from detectors import GEO, TAU, make_tile  # noqa: E402  (tools/bench/detectors.
 
 # SPEC 2's half-valid rule for every window, so the hole gives SMF (context window) a coverage
 # of its own, which the sharing test needs (with min_valid_fraction_zones the zones bind first)
-T, S = TemplateSettings(), DetectorSettings(min_valid_fraction_zones=0.5)
+# detections at each detector's own peak here (relocate = []): the relocation to the matched
+# filter's peak has its own test below, against the same direct maps
+T, S = TemplateSettings(), DetectorSettings(min_valid_fraction_zones=0.5, relocate=())
 CORE = (20, 220)
 
 
@@ -122,3 +124,56 @@ def test_each_detection_carries_the_headroom_of_its_range(job):
             n += 1
         assert all(math.isinf(x.headroom_db) for x in plain.detections[d])
     assert n > 0
+
+
+def test_relocated_detections_sit_at_the_matched_filters_window_peak(job, direct):
+    """``detectors.relocate = ["lac"]`` (the default): each LAC detection is the one at its own
+    peak, with the same score, extent and joint responses, moved to the first maximum of the
+    direct MF map over its template window (brute force), where that maximum is positive."""
+    from atr_node.detectors.windows import window_geometry
+
+    ranges = job.range0_m + job.dr_m * np.arange(job.pixels.shape[1])
+    geom = window_geometry(ranges, template=T, dr_m=job.dr_m, dx_m=job.dx_m, altitude_m=job.altitude_m)
+    plain = detect(job)
+    moved = detect(dataclasses.replace(job, detectors=dataclasses.replace(S, relocate=("lac",))))
+    for d in ("mf", "smf", "z"):
+        assert moved.detections[d] == plain.detections[d], d
+    assert len(moved.detections["lac"]) == len(plain.detections["lac"]) > 0
+    n_moved = 0
+    mf = direct["mf"]
+    for a, b in zip(plain.detections["lac"], moved.detections["lac"]):
+        assert dataclasses.replace(b, row=a.row, col=a.col, range_m=a.range_m) == a
+        j = a.col
+        best, at = -math.inf, None
+        for r in range(max(0, a.row + geom.row0), min(mf.shape[0], a.row + geom.row0 + geom.length_px)):
+            for c in range(max(0, j - geom.echo_px), min(mf.shape[1], j + int(geom.shadow_px[j]))):
+                if math.isfinite(mf[r, c]) and mf[r, c] > best:
+                    best, at = float(mf[r, c]), (r, c)
+        want = at if at is not None and best > 0 else (a.row, a.col)
+        assert (b.row, b.col) == want
+        assert b.range_m == pytest.approx(job.range0_m + b.col * job.dr_m, abs=1e-12)
+        n_moved += (b.row, b.col) != (a.row, a.col)
+    assert n_moved > 0  # the planted targets' LAC peaks lie off the echo/shadow boundary
+    # without the matched filter there is nothing to place by: every detector at its own peak
+    no_mf = tuple(d for d in DETECTOR_NAMES if d != "mf")
+    alone = detect(dataclasses.replace(job, enabled=no_mf, taus={d: TAU[d] for d in no_mf}, sweep=None,
+                                       detectors=dataclasses.replace(S, relocate=("lac",))))
+    assert [dataclasses.replace(x, joint=None) for x in alone.detections["lac"]] == extract(direct["lac"], "lac", TAU["lac"])
+
+
+def test_where_the_recording_clips_detections_stay_at_their_own_peak(job):
+    """``detectors.relocate_headroom_db``: with the job's full scale within that many dB of the
+    seabed everywhere (an 8-bit recording that clips), LAC's detections are those at its own
+    peak; with a full scale far above it (a 16-bit recording's headroom) they move as on float
+    data."""
+    relocating = dataclasses.replace(S, relocate=("lac",))
+    plain = detect(job).detections["lac"]
+    floated = detect(dataclasses.replace(job, detectors=relocating)).detections["lac"]
+    assert floated != plain
+    b = np.asarray(job.background, dtype=np.float64)
+    low, top = float(np.nanmin(b[b > 0])), float(np.nanmax(b))
+    # headroom 10 log10(full_scale / b) is at most 9 dB in every column
+    clipping = detect(dataclasses.replace(job, detectors=relocating, full_scale=low * 10 ** 0.9)).detections["lac"]
+    assert [(x.row, x.col) for x in clipping] == [(x.row, x.col) for x in plain]
+    deep = detect(dataclasses.replace(job, detectors=relocating, full_scale=top * 1e6)).detections["lac"]
+    assert [(x.row, x.col) for x in deep] == [(x.row, x.col) for x in floated]
