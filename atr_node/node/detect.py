@@ -113,10 +113,10 @@ def detect(job: DetectJob, workspace: Workspace | None = None) -> DetectResult:
 
     def placed(d: str, found: list[Detection]) -> list[Detection]:
         # after the joint responses are read at the detector's own peak: the look's score
-        # stays the detector's, only its place moves to the matched filter's peak
-        # where the recording clips (the seabed within relocate_headroom_db of full scale) the
-        # detection stays: there the clipped echo's plateau places the lacunarity as near as
-        # the matched filter does, and moving it cost targets (docs/detectors.md)
+        # stays the detector's, only its place moves to the matched filter's peak. Where the
+        # recording clips (the seabed within relocate_headroom_db of full scale) the detection
+        # stays: there the clipped echo already places the lacunarity about as near as the
+        # matched filter would, and moving it cost targets (docs/detectors.md)
         if d not in moved or not found:
             return found
         g = _geometry(job, joints)
