@@ -21,6 +21,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from ..detectors.windows import window_bounds
 from ..errors import AtrError
 from .stats import dobeck_threshold, wilson_interval
 
@@ -160,9 +161,8 @@ def window_max(score: np.ndarray, row: int, col: int, *, row0: int, length_px: i
                shadow_px: int) -> float:
     """Maximum finite score over the template window of anchor (row, col), clipped to the map;
     NaN when the window holds no finite score."""
-    rows, cols = score.shape
-    r0, r1 = max(0, row + row0), min(rows, row + row0 + length_px)
-    c0, c1 = max(0, col - echo_px), min(cols, col + shadow_px)
+    r0, r1, c0, c1 = window_bounds(score.shape, row, col, row0=row0, length_px=length_px, echo_px=echo_px,
+                                   shadow_px=shadow_px)
     if r0 >= r1 or c0 >= c1:
         return float("nan")
     w = score[r0:r1, c0:c1]

@@ -218,16 +218,18 @@ def place_at_peak(found: list[Detection], reference: np.ndarray, *, row0: int, l
         return found
     import dataclasses
 
+    from .windows import window_bounds
+
     ref = np.asarray(reference)
-    rows, cols = ref.shape
+    cols = ref.shape[1]
     out = []
     for x in found:
         if x.length_m is not None:
             out.append(x)
             continue
-        i, j = int(x.row), min(max(int(x.col), 0), cols - 1)
-        r0, r1 = max(0, i + row0), min(rows, i + row0 + length_px)
-        c0, c1 = max(0, j - echo_px), min(cols, j + int(shadow_px[j]))
+        j = min(max(int(x.col), 0), cols - 1)
+        r0, r1, c0, c1 = window_bounds(ref.shape, int(x.row), j, row0=row0, length_px=length_px, echo_px=echo_px,
+                                       shadow_px=int(shadow_px[j]))
         w = ref[r0:r1, c0:c1] if r0 < r1 and c0 < c1 else ref[:0, :0]
         finite = np.isfinite(w)
         if not finite.any():

@@ -163,3 +163,12 @@ def required_margin(geometry: WindowGeometry) -> tuple[int, int]:
     """
     up, down, left, right = geometry.reach()
     return max(up, down - 1), max(left, right - 1)
+
+
+def window_bounds(shape: tuple[int, int], row: int, col: int, *, row0: int, length_px: int, echo_px: int,
+                  shadow_px: int) -> tuple[int, int, int, int]:
+    """Rows ``[r0, r1)`` and columns ``[c0, c1)`` of the template window of anchor (row, col),
+    rows ``[row + row0, row + row0 + length_px)``, columns ``[col - echo_px, col + shadow_px)``,
+    clipped to a map of ``shape``; empty (``r0 >= r1`` or ``c0 >= c1``) when it lies off the map."""
+    rows, cols = shape
+    return (max(0, row + row0), min(rows, row + row0 + length_px), max(0, col - echo_px), min(cols, col + shadow_px))
