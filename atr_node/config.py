@@ -386,7 +386,9 @@ class CalibrationSettings:
     (docs/fusion.md, "Clipped recordings"). 10 dB: a highlight 10 times the seabed's intensity,
     about the injected population's median echo, reaches full scale."""
     pd_target: float = 0.95
-    range_bin_m: float = 10.0
+    range_bin_m: float = 5.0
+    """Width of P(y)'s range bins. 5 m: P(y) falls over the last few metres of the swath,
+    where the sonar cuts a target's shadow (docs/calibration.md, "P(y) at the swath's end")."""
     online: bool = True
     online_tiles: int = 8
     """On-line calibration uses this many first tiles of the mission (all of a shorter

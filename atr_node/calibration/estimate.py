@@ -25,7 +25,8 @@ from .stats import confidence_curve, dobeck_threshold, pd_curve, range_edges
 
 def estimate_detector(x_t: np.ndarray, x_n: np.ndarray, ranges_m: np.ndarray, *, calibration: CalibrationSettings,
                       default_tau: float, tau: float | None = None, edges_m: np.ndarray | None = None,
-                      tau_from: np.ndarray | None = None, prior_target: float | None = None) -> DetectorPerformance:
+                      tau_from: np.ndarray | None = None, prior_target: float | None = None,
+                      score_from: np.ndarray | None = None) -> DetectorPerformance:
     """One detector's estimates.
 
     Parameters
@@ -43,9 +44,13 @@ def estimate_detector(x_t: np.ndarray, x_n: np.ndarray, ranges_m: np.ndarray, *,
         all. The confidence and P(y) always use every target response.
     prior_target : float, optional
         P(T) per cell (default ``calibration.prior_target``).
+    score_from : (m,) bool, optional
+        The target responses the confidence curve and ``pd_at_tau`` read (the targets clear
+        of the swath's end, :attr:`Responses.whole`); default all. P(y) reads every target.
     """
     x_t = np.asarray(x_t, dtype=np.float64)
-    finite = x_t[np.isfinite(x_t)]
+    x_s = x_t if score_from is None else x_t[np.asarray(score_from, dtype=bool)]
+    finite = x_s[np.isfinite(x_s)]
     sel = x_t if tau_from is None else x_t[np.asarray(tau_from, dtype=bool)]
     sel = sel[np.isfinite(sel)]
     if tau is not None:
@@ -54,7 +59,7 @@ def estimate_detector(x_t: np.ndarray, x_n: np.ndarray, ranges_m: np.ndarray, *,
         tau, source = dobeck_threshold(sel, calibration.pd_target, default=default_tau), "dobeck"
     else:
         tau, source = float(default_tau), "config"
-    conf = confidence_curve(x_t, x_n, tau, prior_target=calibration.prior_target if prior_target is None else prior_target,
+    conf = confidence_curve(x_s, x_n, tau, prior_target=calibration.prior_target if prior_target is None else prior_target,
                             n_points=calibration.confidence_points, smoothing=calibration.smoothing)
     pyr = pd_curve(ranges_m, x_t, tau, bin_m=calibration.range_bin_m, edges_m=edges_m,
                    smoothing=calibration.smoothing)
@@ -76,16 +81,20 @@ def estimate_model(responses: Responses, *, calibration: CalibrationSettings,
     # Thresholds on the nominal targets (SPEC 5, Dobeck at pd_target) keep the operating point
     # of a target of the size and echo the detectors were designed for; the varied rest then
     # shows, in P(y), how often the targets users meet reach it (issue 17 item 5).
-    nominal = responses.nominal
+    # The targets whose shadow the swath's end cut count in P(y) only: the thresholds,
+    # confidence curves and look scores describe a whole signature (docs/calibration.md,
+    # "P(y) at the swath's end")
+    whole = responses.whole
+    nominal = responses.nominal & whole
     on_nominal = thresholds_on_nominal(calibration, nominal)
-    tau_from = nominal if on_nominal else None
+    tau_from = nominal if on_nominal else whole
     prior, prior_info = cell_prior(calibration, responses.provenance)
     dets = {}
     for d in responses.detectors:
         dets[d] = estimate_detector(responses.target[d], responses.nontarget[d], responses.target_range_m,
                                     calibration=calibration, default_tau=getattr(thresholds, d),
                                     tau=None if taus is None else taus.get(d), edges_m=edges, tau_from=tau_from,
-                                    prior_target=prior)
+                                    prior_target=prior, score_from=whole)
     looks = estimate_looks(responses, {d: p.tau for d, p in dets.items()}, calibration=calibration,
                            prior_target=prior, edges_m=edges)
     prov: dict[str, Any] = {
@@ -163,8 +172,9 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     non-target arrays differ in length (responses pooled from elsewhere), no table is made.
     """
     dets = tuple(responses.detectors)
+    whole = responses.whole  # P(y) reads every target, the rest these (as estimate_model)
     tails = {d: _looks.tail_table(responses.nontarget[d]) for d in dets}
-    lrs = ({d: _looks.lr_table(responses.target[d], responses.nontarget[d], tail=tails[d]) for d in dets}
+    lrs = ({d: _looks.lr_table(responses.target[d][whole], responses.nontarget[d], tail=tails[d]) for d in dets}
            if calibration.look_score == "lr" else None)
     # places where the recording clips (an 8-bit file's bright seabed): their own likelihood
     # ratios, and the others' from the others, when both have enough targets and cells
@@ -174,11 +184,12 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
     c_n = _looks.clipped(h_n, limit) if h_n is not None else np.zeros(0, dtype=bool)  # clean cells that clip
     if lrs is not None and h_t is not None and h_n is not None and {c_n.size} == sizes:
         c_t = _looks.clipped(h_t, limit)
-        if (min(int(c_t.sum()), int((~c_t).sum())) >= _looks.MIN_STRATUM_TARGETS
+        if (min(int((c_t & whole).sum()), int((~c_t & whole).sum())) >= _looks.MIN_STRATUM_TARGETS
                 and min(int(c_n.sum()), int((~c_n).sum())) >= _looks.MIN_STRATUM_CELLS):
-            lrs = {d: _looks.lr_table(responses.target[d][~c_t], responses.nontarget[d][~c_n], tail=tails[d])
+            lrs = {d: _looks.lr_table(responses.target[d][~c_t & whole], responses.nontarget[d][~c_n], tail=tails[d])
                    for d in dets}
-            lrs_clipped = {d: _looks.lr_table(responses.target[d][c_t], responses.nontarget[d][c_n], tail=tails[d])
+            lrs_clipped = {d: _looks.lr_table(responses.target[d][c_t & whole], responses.nontarget[d][c_n],
+                                              tail=tails[d])
                            for d in dets}
             clipped_at = (c_t, c_n)
     terms = tails if lrs is None else lrs
@@ -192,8 +203,8 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
                                   + "), per range bin"}
     if clipped_at is not None:
         info["clipped"] = (f"own likelihood ratios where the seabed is within {limit:g} dB of the recording's full scale: "
-                           f"{int(clipped_at[0].sum())} targets, {int(clipped_at[1].sum())} cells there; the others from "
-                           f"{int((~clipped_at[0]).sum())} targets, {int((~clipped_at[1]).sum())} cells")
+                           f"{int((clipped_at[0] & whole).sum())} targets, {int(clipped_at[1].sum())} cells there; the "
+                           f"others from {int((~clipped_at[0] & whole).sum())} targets, {int((~clipped_at[1]).sum())} cells")
     if lrs is not None:
         # None: no floor (-inf has no JSON form)
         info["look_z_min"] = float(calibration.look_z_min) if math.isfinite(calibration.look_z_min) else None
@@ -219,7 +230,7 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
         for subset in itertools.combinations(dets, n):
             z_t, f_t, z_n, f_n, w, w_c = _looks.look_scores(responses.target, responses.nontarget, taus, terms,
                                                             subset, clipped_terms=lrs_clipped, clipped_at=clipped_at,
-                                                            fit=fit_weights)
+                                                            fit=fit_weights, fit_targets=whole)
             if w:
                 weights[_looks.subset_key(subset)] = w
             if w_c:
@@ -233,7 +244,7 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
             # counts as a miss. The table keeps the largest float below z_tau, so the looks
             # that detect (z > tau, the k-th target's z_tau included) are exactly the
             # confidence curve's exceedances, and P(y) is measured with the same rule
-            z_tau = look_tau(z_t, f_t, calibration.look_pd)
+            z_tau = look_tau(z_t[whole], f_t[whole], calibration.look_pd)
             if z_tau > tau:
                 tau, source = float(np.nextafter(z_tau, -np.inf)), "look_pd"
             # ... and, for the likelihood-ratio score, a look whose detectors together say the
@@ -242,12 +253,12 @@ def estimate_looks(responses: Any, taus: Mapping[str, float], *, calibration: An
                 tau, source = float(calibration.look_z_min), "look_z"
             x_t = np.where(f_t, z_t, np.where(np.isfinite(z_t), below, np.nan))
             x_n = np.where(f_n, z_n, np.where(np.isfinite(z_n), below, np.nan))
-            conf = confidence_curve(x_t, x_n, tau, prior_target=prior_target,
+            conf = confidence_curve(x_t[whole], x_n, tau, prior_target=prior_target,
                                     n_points=calibration.confidence_points, smoothing=calibration.smoothing)
             hit_t = f_t & look_detects(z_t, tau, source)
             det_t = np.where(np.isfinite(z_t), hit_t.astype(np.float64), np.nan)
             pyr = pd_curve(responses.target_range_m, det_t, 0.5, edges_m=edges_m, smoothing=calibration.smoothing)
-            covered = np.isfinite(z_t)
+            covered = np.isfinite(z_t) & whole
             pd_tau = float(np.mean(hit_t[covered])) if covered.any() else math.nan
             tables[_looks.subset_key(subset)] = DetectorPerformance(tau=tau, confidence=conf, pyr=pyr, tau_source=source,
                                                              pd_at_tau=pd_tau)

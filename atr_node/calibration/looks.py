@@ -314,15 +314,16 @@ def look_scores(target: Mapping[str, np.ndarray], nontarget: Mapping[str, np.nda
                 terms: Mapping[str, Any], detectors: Sequence[str], *,
                 clipped_terms: Mapping[str, Any] | None = None,
                 clipped_at: tuple[np.ndarray, np.ndarray] | None = None,
-                fit: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                            dict[str, float], dict[str, float]]:
+                fit: bool = False, fit_targets: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, float], dict[str, float]]:
     """(z_t, fired_t, z_n, fired_n, weights, clipped weights) of a detector set: z NaN where no
     detector covered; ``terms``: the per-detector terms (:attr:`LookModel.terms`);
     ``clipped_terms`` those of the targets and cells where ``clipped_at`` (bool masks of the
     targets, of the cells) is true (:attr:`LookModel.lrs_clipped`). ``fit``: the terms weighted
     by :func:`fit_weights` on the covered targets and cells the set fired on, those where it
     clips apart from the others (returned, detector -> weight; the clipped ones empty without
-    ``clipped_terms``); else all 1 (both returned empty)."""
+    ``clipped_terms``); else all 1 (both returned empty). ``fit_targets``: the targets the fit
+    reads (bool mask; default all); z is returned for every target."""
     detectors = _canonical(detectors)
     parts = []
     for k, resp in enumerate((target, nontarget)):
@@ -345,6 +346,8 @@ def look_scores(target: Mapping[str, np.ndarray], nontarget: Mapping[str, np.nda
         (us_t, cov_t, fir_t), (us_n, cov_n, fir_n) = parts
         u_t, u_n = np.column_stack(us_t), np.column_stack(us_n)
         use_t, use_n = cov_t & fir_t, cov_n & fir_n
+        if fit_targets is not None:
+            use_t &= np.asarray(fit_targets, dtype=bool)
         if split:
             c_t, c_n = np.asarray(clipped_at[0], dtype=bool), np.asarray(clipped_at[1], dtype=bool)
             ws = fit_weights(u_t[use_t & ~c_t], u_n[use_n & ~c_n]).tolist()

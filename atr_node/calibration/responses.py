@@ -27,9 +27,11 @@ from .stats import dobeck_threshold, wilson_interval
 
 log = logging.getLogger(__name__)
 
-TRAITS: tuple[str, ...] = ("nominal", "reflectivity_db", "height_m", "headroom_db")
-"""Per-target traits that :func:`collect_image` records: of the injected population, and the
-headroom of the seabed where it lies (:func:`~atr_node.calibration.looks.headroom_db`)."""
+TRAITS: tuple[str, ...] = ("nominal", "reflectivity_db", "height_m", "headroom_db", "whole")
+"""Per-target traits that :func:`collect_image` records: of the injected population, the
+headroom of the seabed where it lies (:func:`~atr_node.calibration.looks.headroom_db`), and
+``whole`` (0/1): 1 where its footprint lies clear of the swath's end, 0 where the sonar cut its
+shadow there (docs/calibration.md, "P(y) at the swath's end")."""
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,14 @@ class Responses:
     def nominal(self) -> np.ndarray:
         """(m,) bool: the targets of the nominal population (all of them when not recorded)."""
         v = self.target_traits.get("nominal")
+        return np.ones(self.n_targets, dtype=bool) if v is None else np.asarray(v) > 0
+
+    @property
+    def whole(self) -> np.ndarray:
+        """(m,) bool: the targets whose footprint lies clear of the swath's end (all of them
+        when not recorded). The thresholds, confidence curves and look scores read these only;
+        P(y) reads every target (docs/calibration.md, "P(y) at the swath's end")."""
+        v = self.target_traits.get("whole")
         return np.ones(self.n_targets, dtype=bool) if v is None else np.asarray(v) > 0
 
     @staticmethod
@@ -258,15 +268,18 @@ class Convergence:
     def enabled(self) -> bool:
         return self.tau_tol > 0.0 and self.pd_tol > 0.0
 
-    def done(self, target: Mapping[str, list[float]], nominal: list[float]) -> bool:
+    def done(self, target: Mapping[str, list[float]], nominal: list[float],
+             whole: list[float] | None = None) -> bool:
         """Whether the responses so far (each detector's, in injection order) have converged;
-        call once after each iteration."""
-        nom = np.asarray(nominal, dtype=float) > 0
+        call once after each iteration. ``whole``: as the trait (the thresholds read those
+        targets only, as :func:`~.estimate.estimate_model`'s); default all."""
+        keep = np.ones(len(nominal), dtype=bool) if whole is None else np.asarray(whole, dtype=float) > 0
+        nom = (np.asarray(nominal, dtype=float) > 0) & keep
         use_nominal = thresholds_on_nominal(self.calibration, nom)
         ok, first = True, not self.last
         for d, values in target.items():
             x = np.asarray(values, dtype=np.float64)
-            sel = x[nom] if use_nominal else x
+            sel = x[nom] if use_nominal else x[keep]
             sel = sel[np.isfinite(sel)]
             if sel.size == 0:
                 return False
@@ -353,7 +366,8 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
     for _ in range(iterations):
         injected, placed = inject_targets(px, range0_m=image.range0_m, n_targets=targets_per_image, rng=rng,
                                           sensor=settings.sensor, simulation=settings.simulation,
-                                          template=settings.template, g=g, population=population, **geo)
+                                          template=settings.template, g=g, population=population,
+                                          swath_end=True, **geo)
         if image.full_scale is not None:  # the sensor clips the target's echo as it clips the seabed's
             np.minimum(injected, np.float32(image.full_scale), out=injected)
         crops = []
@@ -388,10 +402,11 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
             traits["reflectivity_db"].append(float(t.reflectivity_db))
             traits["height_m"].append(float(t.height_m))
             traits["headroom_db"].append(float(head[min(max(j, 0), cols - 1)]))
+            traits["whole"].append(float(t.footprint[3] <= cols - 1))  # as inject_targets refuses without swath_end
         done += 1
         if progress is not None:
             progress()
-        if conv is not None and done < iterations and conv.done(target, traits["nominal"]):
+        if conv is not None and done < iterations and conv.done(target, traits["nominal"], traits["whole"]):
             if progress is not None:
                 for _ in range(iterations - done):
                     progress()

@@ -261,7 +261,7 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
                    shapes: tuple[str, ...] = ("cylinder", "cone", "wedge", "sphere"),
                    range_span_m: tuple[float, float] | None = None, max_burial_m: float = 0.0,
                    population: PopulationSettings | None = None, g: np.ndarray | None = None,
-                   max_tries: int = 30) -> tuple[np.ndarray, list[InjectedTarget]]:
+                   max_tries: int = 30, swath_end: bool = False) -> tuple[np.ndarray, list[InjectedTarget]]:
     """Inject simulated targets into a copy of a ground-range tile.
 
     Parameters
@@ -296,6 +296,15 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
         Background intensity curve g(r); default: measured on this tile.
     max_tries
         Random draws per requested target before giving up on it.
+    swath_end
+        The tile's last column is where the sonar stops recording (a whole ground-range tile,
+        as the calibration injects into). The ``n_targets`` random targets are placed as
+        without it (the same draws of ``rng``: every one clear of the far edge); then the draws
+        they refused only because their signature ran past the last column are placed too,
+        as targets whose shadow the swath's end cuts, where they overlap nothing, with their
+        speckle from a generator spawned from ``rng`` (whose stream stays the one without
+        ``swath_end``). Together the targets are the population a uniform draw over the
+        swath gives (docs/calibration.md, "P(y) at the swath's end"). False: only the first.
 
     Returns
     -------
@@ -325,14 +334,24 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
     targets: list[InjectedTarget] = []
     taken: list[tuple[int, int, int, int]] = []
 
-    def refused(fp: tuple[int, int, int, int]) -> bool:
-        """The checks of a random placement's footprint: edges, other targets, no data."""
-        if fp[0] < gap[0] or fp[1] > rows - gap[0] or fp[2] < 1 or fp[3] > cols - 1:
+    cut: list[Placement] = []  # swath_end: draws refused only for running past the last column
+
+    def refused(fp: tuple[int, int, int, int], p: Placement | None = None, far_edge: bool = True) -> bool:
+        """The checks of a random placement's footprint: edges (the far one with
+        ``far_edge``), other targets, no data. A draw ``p`` refused only at the far edge is
+        kept in ``cut`` with ``swath_end``."""
+        if fp[0] < gap[0] or fp[1] > rows - gap[0] or fp[2] < 1:
             return True
         if _overlaps(fp, taken, gap):
             return True
         win = host[fp[0]:fp[1], fp[2]:fp[3]]
-        return bool(np.isnan(win).mean() > 0.05 or not np.all(np.isfinite(g[fp[2]:fp[3]])))
+        if np.isnan(win).mean() > 0.05 or not np.all(np.isfinite(g[fp[2]:fp[3]])):
+            return True
+        if far_edge and fp[3] > cols - 1:
+            if swath_end and p is not None:
+                cut.append(p)
+            return True
+        return False
 
     engine = simulation.engine
 
@@ -351,24 +370,27 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
             return None
         kernel = _kernel(round(p.range_m, 1), dx_m, sensor)
         fp = blurred_footprint(window.footprint, kernel, rows)
-        if early and refused(fp):
+        if early and refused(fp, p):
             return None
         return _Ready(p, local, window, kernel, fp)
 
     def usable(sig: Signature) -> bool:
         return not (sig.empty or (sig.echo.max() <= 0 and sig.p_shadow.max() <= 0))
 
-    def finish(r: _Ready, sig: Signature, check: bool) -> tuple[int, int, int, int] | None:
+    def finish(r: _Ready, sig: Signature, check: bool, gen: np.random.Generator | None = None
+               ) -> tuple[int, int, int, int] | None:
         """Blend a traced placement into the host and record it: its footprint, or None when
-        the checks on the traced signature refuse it (``check`` without :data:`PRECHECK`)."""
+        the checks on the traced signature refuse it (``check`` without :data:`PRECHECK`).
+        ``gen``: the generator of its speckle (default ``rng``)."""
         p = r.p
         sig = blur_along_track(sig, r.kernel, rows)
         fp = sig.footprint
-        if check and not PRECHECK and refused(fp):
+        if check and not PRECHECK and refused(fp, p):
             return None
         # Reflectivity scales the echo intensity only: the shadow is the seabed's business.
         rho_e_t = rho_e if p.reflectivity_db == 0.0 else rho_e * 10.0 ** (p.reflectivity_db / 10.0)
-        render(host, sig, g=g, rho_shadow=rho_s, rho_echo=rho_e_t, rng=rng, kind=kind, speckle=r.speckle)
+        render(host, sig, g=g, rho_shadow=rho_s, rho_echo=rho_e_t, rng=rng if gen is None else gen, kind=kind,
+               speckle=r.speckle)
         row = int(round(p.row))
         col = anchor_column(sig, row, rho_s, rho_e_t)
         jc = min(max(int(round((p.range_m - range0_m) / dr_m)), 0), cols - 1)
@@ -400,6 +422,23 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
             return False
         taken.append(fp)
         return True
+
+    def place_cut(draws: list[Placement]) -> None:
+        """swath_end: the draws refused only at the far edge, in order, where they overlap
+        nothing placed (the targets, the ones before); their speckle from a generator spawned
+        from ``rng``, whose own stream stays untouched."""
+        gen = rng.spawn(1)[0]
+        ready = []
+        for p in draws:
+            r = prepare(p, False)
+            if r is None or refused(r.fp, far_edge=False):
+                continue
+            r.speckle = draw_speckle(gen, (r.fp[1] - r.fp[0], r.fp[3] - r.fp[2]))
+            taken.append(r.fp)
+            ready.append(r)
+        for r, sig in zip(ready, trace_all(ready)):
+            if usable(sig):
+                finish(r, sig, False, gen)
 
     # Random targets keep the SMF context window (SPEC 2.3) of each other and of the edges.
     gap = (int(math.ceil(template.context_factor * template.length_m / dx_m / 2)),
@@ -457,9 +496,12 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
             # would have drawn again there. Replay that order from the same generator state.
             rng.bit_generator.state = start
             taken.clear()
+            cut.clear()
             one_by_one()
     else:
         one_by_one()
     if len(targets) < n:
         log.info("placed %d of %d targets: the tile has no room for more", len(targets), n)
+    if cut:
+        place_cut(cut)
     return host, targets

@@ -50,12 +50,14 @@ def _wilson_half(k: float, n: float, z: float = 1.959963984540054) -> float:
 def _criterion(s: Settings, resp_now, resp_before) -> bool:
     """issue 19's rule, read directly from its definition (docs/calibration.md)."""
     cal = s.calibration
-    nominal_now = resp_now.nominal
-    nominal_before = resp_before.nominal
+    # the thresholds read the targets clear of the swath's end (the nominal ones among them)
+    whole_now, whole_before = resp_now.whole, resp_before.whole
+    nominal_now = resp_now.nominal & whole_now
+    nominal_before = resp_before.nominal & whole_before
     for d in resp_now.detectors:
         x, xb = resp_now.target[d], resp_before.target[d]
-        sel = x[nominal_now] if nominal_now.sum() >= 20 else x
-        selb = xb[nominal_before] if nominal_before.sum() >= 20 else xb
+        sel = x[nominal_now] if nominal_now.sum() >= 20 else x[whole_now]
+        selb = xb[nominal_before] if nominal_before.sum() >= 20 else xb[whole_before]
         tau, tau_b = _dobeck(sel, cal.pd_target), _dobeck(selb, cal.pd_target)
         f = x[np.isfinite(x)]
         iqr = np.percentile(f, 75) - np.percentile(f, 25)
@@ -77,6 +79,7 @@ def test_an_image_stops_at_the_first_iteration_its_rule_holds(setup):
     got = _collect(s, image, CAP, progress=lambda: ticks.append(1))
     done = got.provenance["iterations_done"][0]
     assert 2 <= done < CAP  # it converged before the cap on this image
+    assert not got.whole.all()  # some targets reach the swath's end: the rule must leave them out
     assert len(ticks) == CAP  # progress still counts every iteration (the spared ones at the end)
     off = _with(s, converge_pd=0.0)
     # the first `done` iterations of a run without the rule: the same draws, the same responses
@@ -123,3 +126,22 @@ def test_bad_settings_are_refused(tmp_path, key, value):
     f.write_text(f"[calibration]\n{key} = {value}\n")
     with pytest.raises(ConfigError, match=f"calibration.{key}"):
         load_settings(f)
+
+
+def test_the_rule_s_thresholds_leave_out_the_targets_the_swath_s_end_cut():
+    """Convergence reads the thresholds estimate_model will set: on the whole targets (the
+    nominal ones among them when there are enough), not on those the swath's end cut."""
+    from atr_node.calibration.responses import Convergence
+
+    rng = np.random.default_rng(5)
+    m = 200
+    x = rng.normal(3.0, 1.0, m)
+    whole = np.ones(m)
+    whole[:30] = 0.0
+    x[:30] = -5.0  # cut targets: far weaker
+    nominal = (rng.random(m) < 0.5).astype(float)
+    cal = _with(Settings(), converge_pd=0.02).calibration
+    for w, sel in ((whole, (nominal > 0) & (whole > 0)), (None, nominal > 0)):
+        conv = Convergence(cal, POOLED)
+        conv.done({"mf": list(x)}, list(nominal), None if w is None else list(w))
+        assert conv.last["mf"] == _dobeck(x[sel], cal.pd_target)

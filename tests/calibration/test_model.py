@@ -147,7 +147,7 @@ def test_empty_responses_give_a_defined_model(tmp_path):
 def test_single_target_and_single_cell(tmp_path):
     one = Responses(detectors=("z",), target={"z": np.array([4.0])}, nontarget={"z": np.array([0.5])},
                     target_range_m=np.array([42.0]))
-    m = estimate_model(one, calibration=CalibrationSettings(), thresholds=ThresholdSettings())
+    m = estimate_model(one, calibration=CalibrationSettings(range_bin_m=10.0), thresholds=ThresholdSettings())
     p = m.detectors["z"]
     assert p.tau < 4.0 and p.pd_at_tau == 1.0
     assert p.pyr.injected.tolist() == [1] and p.pyr.edges_m.tolist() == [40.0, 50.0]
@@ -193,3 +193,37 @@ def test_property_codec_round_trip_and_invariants(targets, cells, smoothing, pd_
     assert np.all((p >= 0) & (p <= 1))
     if r.size:
         assert np.all(p[(rr < back.detectors["lac"].pyr.edges_m[0]) | (rr > back.detectors["lac"].pyr.edges_m[-1])] == 0)
+
+
+@pytest.mark.parametrize("look_weights", ["sum", "fit"])
+def test_targets_cut_by_the_swath_end_count_in_p_y_only(rng, look_weights):
+    """A target whose shadow the swath's end cut (trait ``whole`` 0) counts in P(y), detected or
+    not, and nowhere else: thresholds, confidence curves, look scores and weights are those of
+    the whole targets alone, and P(y) in the cut targets' bin is their own share over tau."""
+    m, n_cut, k = 600, 150, 5000
+    r = np.concatenate([rng.uniform(15.0, 80.0, m), rng.uniform(85.0, 90.0, n_cut)])
+    common = rng.normal(size=m + n_cut)
+    shift = np.where(np.arange(m + n_cut) < m, 3.0, 0.5)  # cut targets: weak (half their shadow gone)
+    tgt = {d: shift + 0.8 * common + 0.6 * rng.normal(size=m + n_cut) for d in ("mf", "lac")}
+    cells = {d: rng.normal(size=k) for d in ("mf", "lac")}
+    whole = (np.arange(m + n_cut) < m).astype(np.float64)
+    full = Responses(("mf", "lac"), tgt, cells, r, ("cylinder",) * (m + n_cut), {"cell_area_m2": 5.0},
+                     {"whole": whole})
+    sub = Responses(("mf", "lac"), {d: v[:m] for d, v in tgt.items()}, cells, r[:m], ("cylinder",) * m,
+                    {"cell_area_m2": 5.0})
+    cal = CalibrationSettings(look_weights=look_weights)
+    a, b = (estimate_model(x, calibration=cal, thresholds=ThresholdSettings()) for x in (full, sub))
+    g = np.linspace(-3.0, 8.0, 45)
+    for d in ("mf", "lac"):
+        assert a.tau[d] == b.tau[d] and a.detectors[d].pd_at_tau == b.detectors[d].pd_at_tau
+        np.testing.assert_array_equal(a.confidence(d, g), b.confidence(d, g))
+        np.testing.assert_array_equal(a.pd(d, [17.5, 42.5, 77.5]), b.pd(d, [17.5, 42.5, 77.5]))
+        # the cut targets' bin, 85-90 m: Jeffreys (detected + 1/2) / (injected + 1), by hand
+        hit = int(np.sum(tgt[d][m:] > a.tau[d]))
+        assert a.pd(d, 87.5) == pytest.approx((hit + 0.5) / (n_cut + 1), rel=1e-12)
+        assert b.pd(d, 87.5) == 0.0  # without them: outside the span
+    la, lb = a.look(("mf", "lac")), b.look(("mf", "lac"))
+    assert la.tau == lb.tau and la.tau_source == lb.tau_source
+    np.testing.assert_array_equal(la.confidence_at(g), lb.confidence_at(g))
+    assert a.looks.weights == b.looks.weights and (a.looks.weights is not None) == (look_weights == "fit")
+    assert 0.0 < la.pd_at(87.5) < la.pd_at(42.5)

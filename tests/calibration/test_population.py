@@ -62,7 +62,7 @@ def test_model_file_records_the_population(images, tmp_path):
     pop = PopulationSettings(mode="varied", reflectivity_db=(-6.0, 4.0), tilt_deg=15.0)
     s = settings_with(pop)
     resp = collect_responses(images, settings=s, iterations=1, targets_per_image=10, seed=0)
-    assert set(resp.target_traits) == {"nominal", "reflectivity_db", "height_m", "headroom_db"}
+    assert set(resp.target_traits) == {"nominal", "reflectivity_db", "height_m", "headroom_db", "whole"}
     refl = resp.target_traits["reflectivity_db"][~resp.nominal]
     assert refl.size and refl.min() >= -6.0 and refl.max() <= 4.0
     model = estimate_model(resp, calibration=s.calibration)

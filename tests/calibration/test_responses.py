@@ -61,7 +61,7 @@ def test_crop_scoring_equals_whole_image_scoring(seabed_image):
     injected, placed = inject_targets(im.pixels, range0_m=im.range0_m, dr_m=im.dr_m, dx_m=im.dx_m,
                                       altitude_m=im.altitude_m, n_targets=6, rng=np.random.default_rng(11),
                                       sensor=s.sensor, simulation=s.simulation, template=s.template,
-                                      population=s.calibration.population)
+                                      population=s.calibration.population, swath_end=True)
     b, m = column_mean(im.pixels), column_median(im.pixels)
     full = score_maps(injected, range0_m=im.range0_m, dr_m=im.dr_m, dx_m=im.dx_m, altitude_m=im.altitude_m,
                       template=s.template, detectors=s.detectors, background=b, median=m)
@@ -75,6 +75,27 @@ def test_crop_scoring_equals_whole_image_scoring(seabed_image):
         assert np.nanmedian(resp.target[d]) > np.nanpercentile(resp.nontarget[d], 90)
     # non-target cells: of the clean image, NaN-free past the no-data band is not required
     assert resp.nontarget["mf"].size == (320 // geom.length_px) * (cell_edges(geom.shadow_px, geom.echo_px).size - 1)
+
+
+def test_targets_cut_by_the_swath_end_are_recorded():
+    """An image whose data run to its last column (the swath's end): a target there keeps its
+    place, its shadow cut, and the trait ``whole`` says which (docs/calibration.md)."""
+    s = Settings()
+    px = synthetic_seabed(320, 300, range0_m=30.0, dr_m=0.1, dx_m=0.1, seabed="sand", rng=np.random.default_rng(4))
+    im = CalibrationImage(px, 30.0, 0.1, 0.1, s.sensor.altitude_m, name="edge")
+    cut = 0
+    for seed in range(6):
+        resp = collect_image(im, settings=s, iterations=1, targets_per_image=8, rng=np.random.default_rng(seed))
+        _, placed = inject_targets(im.pixels, range0_m=im.range0_m, dr_m=im.dr_m, dx_m=im.dx_m,
+                                   altitude_m=im.altitude_m, n_targets=8, rng=np.random.default_rng(seed),
+                                   sensor=s.sensor, simulation=s.simulation, template=s.template,
+                                   population=s.calibration.population, swath_end=True)
+        assert [t.range_m for t in placed] == resp.target_range_m.tolist()
+        want = [float(t.footprint[3] <= px.shape[1] - 1) for t in placed]
+        assert resp.target_traits["whole"].tolist() == want
+        np.testing.assert_array_equal(resp.whole, np.asarray(want) > 0)
+        cut += want.count(0.0)
+    assert cut > 0  # some did reach the swath's end
 
 
 def test_image_from_a_slant_tile_is_on_ground_range():

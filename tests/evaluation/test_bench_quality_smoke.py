@@ -216,17 +216,17 @@ def test_covering_legs_is_the_node_s_coverage_at_pd_0_8():
     unit = SimpleNamespace(leg=3, geometry=geom, ranges_m=tile.ranges_m, model=model,
                            result=SimpleNamespace(covered=lambda d: covered))
     run = SimpleNamespace(units=[unit])
-    pd_30 = float(model.look(dets).pd_at(30.0))
-    assert pd_30 >= 0.8
-    assert bench_quality.covering_legs(run, (30.0, 15.0), dets) == {3}  # starboard, 30 m, ping 150
-    assert bench_quality.covering_legs(run, (-30.0, 15.0), dets) == set()  # the other side
+    pd_40 = float(model.look(dets).pd_at(40.0))
+    assert pd_40 >= 0.8
+    assert bench_quality.covering_legs(run, (40.0, 15.0), dets) == {3}  # starboard, 40 m, ping 150
+    assert bench_quality.covering_legs(run, (-40.0, 15.0), dets) == set()  # the other side
     assert bench_quality.covering_legs(run, (3.0, 15.0), dets) == set()  # in the nadir gap
-    assert bench_quality.covering_legs(run, (30.0, 45.0), dets) == set()  # past the last ping
+    assert bench_quality.covering_legs(run, (40.0, 45.0), dets) == set()  # past the last ping
     assert bench_quality.covering_legs(run, (70.0, 15.0), dets) == set()  # beyond the swath
-    assert bench_quality.covering_legs(run, (30.0, 15.0), dets, pd_min=pd_30 + 1e-9) == set()
+    assert bench_quality.covering_legs(run, (40.0, 15.0), dets, pd_min=pd_40 + 1e-9) == set()
     # the P(y) each covering leg read there; a leg not covering is not listed
-    got = bench_quality.covering_pd(run, (30.0, 15.0), dets)  # read at the beam's own range, 30 m to 1e-9
-    assert set(got) == {3} and abs(got[3] - pd_30) < 1e-6
+    got = bench_quality.covering_pd(run, (40.0, 15.0), dets)  # read at the beam's own range, 40 m to 1e-9
+    assert set(got) == {3} and abs(got[3] - pd_40) < 1e-6
     assert bench_quality.covering_pd(run, (3.0, 15.0), dets) == {}
 
 
@@ -315,3 +315,49 @@ def test_rock_cue_part_smoke(tmp_path, capsys):
     assert "| sand-201-2x60 |" in capsys.readouterr().out
     # the held-out seeds never measure an idea
     assert bench_quality.main(["rock-cue", "--seeds", "101", "--out", str(tmp_path / "h")]) == 2
+
+
+def test_look_pd_pairs_and_their_fidelity():
+    """One pair per target and covering leg: the P(y) that leg's look had there and whether a
+    detection of that leg within 3 m made a look detection; log loss and Brier against a
+    direct computation."""
+    import math
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from atr_node.calibration.model import PerformanceModel
+    from atr_node.detectors.extract import Detection
+    from atr_node.geo import MissionFrame, tile_geometry
+    from atr_node.records.tile import Tile, TileNav
+
+    frame = MissionFrame("ltp", 43.0, 7.0)
+    rows, cols, dr = 300, 600, 0.1
+    lat, lon = frame.to_latlon(np.zeros(rows), np.arange(rows) * 0.1)
+    tile = Tile("t", 3, "stbd", 0, np.ones((rows, cols), np.float32), "intensity", 0.0, dr, 0.1, False,
+                1.7e9 + 0.1 * np.arange(rows), nav=TileNav(lat, lon, np.zeros(rows), np.full(rows, 8.0)))
+    geom = tile_geometry(tile, frame)
+    covered = np.ones((rows, cols), bool)
+    covered[:, :60] = False
+    model = PerformanceModel.shipped()
+    dets = ("mf", "lac", "smf", "z")
+    table = model.look(dets)
+    strong = tuple((d, 50.0 * model.tau[d]) for d in dets)  # far past every threshold: a look detection
+    i, r, _ = geom.locate(40.0, 15.0)
+    j = int(np.argmin(np.abs(tile.ranges_m - r)))
+    hit = Detection("mf", i, j, strong[0][1], float(tile.ranges_m[j]), 0.6, 2.0, 50, joint=strong)
+    unit = SimpleNamespace(leg=3, geometry=geom, ranges_m=tile.ranges_m, model=model,
+                           result=SimpleNamespace(covered=lambda d: covered, detections={"mf": [hit]}))
+    run = SimpleNamespace(units=[unit])
+    assert bool(table.detects(model.look_score(dict(strong), dets)))
+    # detected at 40 m, missed at 50 m, not covered in the nadir gap or on the other side
+    pairs = bench_quality.look_pd_pairs(run, [(40.0, 15.0), (50.0, 15.0), (3.0, 15.0), (-40.0, 15.0)], dets)
+    assert len(pairs) == 2
+    (r1, p1, d1), (r2, p2, d2) = pairs
+    assert d1 is True and d2 is False and abs(r1 - 40.0) < 0.1 and abs(r2 - 50.0) < 0.1
+    assert p1 == float(table.pd_at(r1)) and p2 == float(table.pd_at(r2))
+    f = bench_quality.pd_fidelity(pairs)
+    assert f["pairs"] == 2 and f["detected"] == 0.5
+    want = -(math.log(p1) + math.log(1.0 - p2)) / 2.0
+    assert abs(f["log_loss"] - want) < 1e-4 and abs(f["brier"] - ((1 - p1) ** 2 + p2 ** 2) / 2.0) < 1e-4
+    assert [b["pairs"] for b in f["bands"]] == [0, 1, 1]

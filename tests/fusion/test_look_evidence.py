@@ -44,10 +44,10 @@ def responses():
 
 @pytest.fixture(scope="module")
 def model(responses):
-    """Every fired look detects (look_pd 0, no floor on z): Pd(r) flat enough for the closed
-    forms below."""
+    """Every fired look detects (look_pd 0, no floor on z); 10 m range bins: Pd(r) flat enough
+    for the closed forms below."""
     return estimate_model(responses, calibration=CalibrationSettings(prior="fixed", prior_target=0.01, look_pd=0.0,
-                                                                     look_z_min=-math.inf),
+                                                                     look_z_min=-math.inf, range_bin_m=10.0),
                           thresholds=ThresholdSettings())
 
 

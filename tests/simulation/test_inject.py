@@ -203,3 +203,38 @@ def test_injection_into_a_real_sas_texture(real_data, rng):
         assert np.nanmean(o[hidden]) < 0.4 * local           # amplitude ratio ~ sqrt(rho_shadow) ~ 0.2
         assert np.nanmean(o[bright]) > 2.0 * local
     assert not (changed & ~inside).any()
+
+
+@pytest.mark.parametrize("max_tries", [1, 30])
+def test_swath_end_lets_shadows_run_off_the_far_edge(rng, max_tries):
+    """The calibration injects into whole tiles, whose last column is where the sonar stops
+    recording: with ``swath_end`` the draws refused only there are placed too, each losing the
+    part of its shadow beyond (a real target's is cut there too), after the targets placed
+    without it, which stay exactly what they were (same draws, same pixels)."""
+    host = host_tile(rng, rows=1200, cols=600)  # swath 0-60 m
+    kw = dict(range0_m=0.0, dr_m=DR, dx_m=DX, altitude_m=H, n_targets=8, template=TemplateSettings(),
+              range_span_m=(50.0, 59.5), max_tries=max_tries)
+    gen_c, gen_o = np.random.default_rng(3), np.random.default_rng(3)
+    out_c, closed = inject_targets(host, rng=gen_c, **kw)
+    out_o, opened = inject_targets(host, rng=gen_o, swath_end=True, **kw)
+    assert gen_c.bit_generator.state == gen_o.bit_generator.state  # the caller's stream goes on unchanged
+    cols = host.shape[1]
+    assert all(t.footprint[3] <= cols - 1 for t in closed)
+    assert opened[:len(closed)] == closed
+    cut = opened[len(closed):]
+    assert cut and all(t.footprint[3] == cols for t in cut), [t.footprint for t in opened]
+    for t in opened:
+        assert 50.0 <= t.range_m <= 59.5 and 0 <= t.col < cols
+    # the extra targets changed nothing outside their footprints, and overlap nothing
+    outside = np.ones(host.shape, bool)
+    for t in cut:
+        outside[t.footprint[0]:t.footprint[1], t.footprint[2]:t.footprint[3]] = False
+    np.testing.assert_array_equal(out_o[outside], out_c[outside])
+    fps = [t.footprint for t in opened]
+    for i, a in enumerate(fps):
+        for b in fps[i + 1:]:
+            assert a[1] <= b[0] or b[1] <= a[0] or a[3] <= b[2] or b[3] <= a[2], (a, b)
+    # a cut target's shadow is there, up to the edge: the pixels behind its echo darken
+    t = cut[0]
+    r0, r1, c0, c1 = t.footprint
+    assert np.nanmean(out_o[r0:r1, t.col + 1:cols]) < np.nanmean(host[r0:r1, t.col + 1:cols])

@@ -21,7 +21,8 @@ own Pd (``fa_at_pd_of``: the issue's "fewer false alarms at equal Pd", :func:`ch
 each DS form's false alarms lie on, at Pd 0.8 on its ROC and at the operating point
 (``fa_anatomy``: a second contact on a target, a one-leg object, a target-like rock, another
 rock, the seabed; :func:`atr_node.evaluation.scoring.fa_anatomy`, the generator's rocks as the
-clutter).
+clutter); how well the look P(y) predicts the looks' detections (``look_pd``: log loss and
+Brier per range band over every target and leg whose look covered it, :func:`look_pd_pairs`).
 
 Then the shared real side-scan recordings (``--recordings``; they have no ground truth): per
 method the contacts it publishes, the objects read by eye it finds (the marks of
@@ -114,8 +115,16 @@ def covering_pd(run, point_en, detectors, *, max_off_m: float = 1.0) -> dict[int
     not NaN: not in the nadir gap, the first-return band or a dropped ping); the P(y) is the
     unit's model's look ``Pd(r)`` at that range (the per-detector maximum for a model without
     look tables), the largest over the leg's units that cover the point."""
-    pe, pn = (float(v) for v in point_en)
     legs: dict[int, float] = {}
+    for u, _r, pd in _covering_units(run, point_en, detectors, max_off_m):
+        legs[u.leg] = max(pd, legs.get(u.leg, -math.inf))
+    return legs
+
+
+def _covering_units(run, point_en, detectors, max_off_m: float):
+    """(unit, ground range, look P(y) there) for every unit whose look covered ``point_en``
+    (:func:`covering_pd`'s rule)."""
+    pe, pn = (float(v) for v in point_en)
     for u in run.units:
         i, r, off = u.geometry.locate(pe, pn)
         ranges = np.asarray(u.ranges_m, dtype=np.float64)
@@ -125,10 +134,66 @@ def covering_pd(run, point_en, detectors, *, max_off_m: float = 1.0) -> dict[int
         if not any(u.result.covered(d)[i, j] for d in detectors):
             continue
         table = u.model.look(detectors)
-        pd = (float(table.pd_at(r)) if table is not None
-              else max(float(u.model.pd(d, r)) for d in detectors))
-        legs[u.leg] = max(pd, legs.get(u.leg, -math.inf))
-    return legs
+        yield u, float(r), (float(table.pd_at(r)) if table is not None
+                            else max(float(u.model.pd(d, r)) for d in detectors))
+
+
+PD_BANDS_M = ((0.0, 15.0), (15.0, 50.0), (50.0, math.inf))
+"""Ground-range bands of the look P(y) fidelity: near the nadir, mid-swath, the swath's end."""
+
+
+def look_pd_pairs(run, targets_en, detectors, *, gate_m: float = 3.0, max_off_m: float = 1.0
+                  ) -> list[tuple[float, float, bool]]:
+    """(ground range, look P(y), detected) per target and leg whose look covered it: the P(y) the
+    node used for that look (:func:`covering_pd`: the largest over the leg's units, at the range
+    of the unit that gave it) and whether a detection of that leg within ``gate_m`` of the
+    target made a look detection under its unit's look table (fired, ``z`` past the table's
+    threshold: :meth:`~atr_node.calibration.model.DetectorPerformance.detects`). A calibrated
+    P(y) predicts the share detected (docs/calibration.md, "P(y) at the swath's end")."""
+    out = []
+    for pe, pn in np.asarray(targets_en, dtype=np.float64).reshape(-1, 2):
+        legs: dict[int, list] = {}
+        for u, r, pd in _covering_units(run, (pe, pn), detectors, max_off_m):
+            if u.leg not in legs or pd > legs[u.leg][1]:
+                legs[u.leg] = [r, pd, False]
+        for u in run.units:
+            if u.leg not in legs or legs[u.leg][2]:
+                continue
+            table = u.model.look(detectors)
+            for d in detectors:
+                for x in u.result.detections.get(d, ()):
+                    xe, xn = u.geometry.world(x.row, x.col)
+                    if math.hypot(float(xe) - pe, float(xn) - pn) > gate_m:
+                        continue
+                    if table is None:  # no look tables: any detection detects
+                        legs[u.leg][2] = True
+                        continue
+                    joint = dict(x.joint) if x.joint is not None else {d: x.gamma}
+                    z = u.model.look_score({k: np.float64(v) for k, v in joint.items()}, detectors,
+                                           headroom_db=x.headroom_db)
+                    legs[u.leg][2] |= bool(table.detects(z))
+        out += [tuple(v) for v in legs.values()]
+    return out
+
+
+def pd_fidelity(pairs) -> dict:
+    """Log loss and Brier score of the look P(y) against the looks' detections (P(y) clipped to
+    [1e-3, 1 - 1e-3] for the log), overall and per :data:`PD_BANDS_M` band."""
+    a = np.asarray([(r, pd, float(det)) for r, pd, det in pairs], dtype=np.float64).reshape(-1, 3)
+
+    def figs(m) -> dict:
+        p, y = np.clip(a[m, 1], 1e-3, 1 - 1e-3), a[m, 2]
+        n = int(m.sum())
+        if n == 0:
+            return {"pairs": 0}
+        ll = -np.where(y > 0, np.log(p), np.log1p(-p))
+        return {"pairs": n, "log_loss": round(float(ll.mean()), 4), "brier": round(float(((p - y) ** 2).mean()), 4),
+                "model_pd": round(float(a[m, 1].mean()), 3), "detected": round(float(y.mean()), 3)}
+
+    out = figs(np.ones(len(a), dtype=bool))
+    out["bands"] = [{"range_m": [lo, hi if math.isfinite(hi) else None], **figs((a[:, 0] >= lo) & (a[:, 0] < hi))}
+                    for lo, hi in PD_BANDS_M]
+    return out
 
 
 def _threshold_at_pd(curve, pd: float) -> float | None:
@@ -188,6 +253,16 @@ def pooled_reliability(results: list[dict]) -> dict[str, dict]:
         group["bins"] = rows
         group["rises"] = bool(all(b >= a - 0.05 for a, b in zip(shares, shares[1:])))
     return out
+
+
+def pooled_pd_fidelity(results: list[dict]) -> dict[str, dict]:
+    """:func:`pd_fidelity` of every scene's look P(y) pairs pooled, per variant (as
+    :func:`pooled_reliability` names them)."""
+    groups: dict[str, list] = {}
+    for r in results:
+        if "look_pd" in r:
+            groups.setdefault(r.get("variant", "base"), []).extend(r["look_pd"]["rows"])
+    return {name: pd_fidelity(pairs) for name, pairs in groups.items()}
 
 
 def pooled_fa_anatomy(results: list[dict]) -> dict[str, dict]:
@@ -295,6 +370,8 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
         # next of the few points recorded above it
         out["methods"][DS_METHODS[0][0]].setdefault("fa_at_pd_of", {})[name] = (
             ds_curve.fa_at_pd(p.pd) if p.pd > 0 else 0.0)
+    pairs = look_pd_pairs(run, t_en, en)
+    out["look_pd"] = {**pd_fidelity(pairs), "rows": [[round(r, 2), round(pd, 4), bool(det)] for r, pd, det in pairs]}
     out["seconds"] = round(time.monotonic() - t0, 1)
     out["checks"] = checks(out, settings)
     return out
@@ -472,6 +549,14 @@ def markdown(results: list[dict]) -> str:
             lines.append(f"- pooled, {name}: " + "; ".join(
                 f"{at}: {a['false_alarms']} false alarms, " + ", ".join(f"{k.replace('_', ' ')} {a[k]}" for k in FA_KINDS)
                 for at, a in g.items()))
+        lines.append("")
+        lines.append("Look P(y) against the looks' detections (target x covering leg; log loss, Brier; per range band: "
+                     "pairs, mean model P(y) / share detected, log loss)")
+        for name, f in pooled_pd_fidelity(results).items():
+            lines.append(f"- {name}: {f['pairs']} pairs, log loss {f.get('log_loss', '-')}, Brier {f.get('brier', '-')}; " + "; ".join(
+                f"{b['range_m'][0]:g}-{'' if b['range_m'][1] is None else format(b['range_m'][1], 'g')} m: {b['pairs']}"
+                + (f", {b['model_pd']:.2f} / {b['detected']:.2f}, {b['log_loss']}" if b["pairs"] else "")
+                for b in f["bands"]))
         lines.append("")
         lines.append("Reliability pooled over each variant's scenes (DS look): Bel bin -> contacts, share on a target "
                      "[95 % Wilson interval]")
