@@ -402,7 +402,7 @@ def collect_image(image: CalibrationImage, *, settings: Any, iterations: int, ta
             traits["reflectivity_db"].append(float(t.reflectivity_db))
             traits["height_m"].append(float(t.height_m))
             traits["headroom_db"].append(float(head[min(max(j, 0), cols - 1)]))
-            traits["whole"].append(float(t.footprint[3] <= cols - 1))  # as inject_targets refuses without swath_end
+            traits["whole"].append(float(not t.cut))
         done += 1
         if progress is not None:
             progress()

@@ -92,6 +92,9 @@ class InjectedTarget:
     height_m: float = float("nan")
     """Height of the (scaled, tilted) target above the seabed once buried: what the sonar sees."""
     nominal: bool = True
+    cut: bool = False
+    """Placed by ``swath_end``: its signature runs past the tile's last column, the shadow cut
+    there (:func:`inject_targets`)."""
 
 
 def anchor_column(sig: Signature, row: int, rho_shadow: np.ndarray, rho_echo: np.ndarray) -> int:
@@ -381,7 +384,8 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
                ) -> tuple[int, int, int, int] | None:
         """Blend a traced placement into the host and record it: its footprint, or None when
         the checks on the traced signature refuse it (``check`` without :data:`PRECHECK`).
-        ``gen``: the generator of its speckle (default ``rng``)."""
+        ``gen``: given for the swath-end targets only (:func:`place_cut`), the generator of
+        their speckle (else ``rng``); they are recorded ``cut``."""
         p = r.p
         sig = blur_along_track(sig, r.kernel, rows)
         fp = sig.footprint
@@ -402,7 +406,7 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
                                       scale=tuple(float(f) for f in p.scale), roll_deg=float(p.roll_deg),
                                       pitch_deg=float(p.pitch_deg),
                                       height_m=max(r.local.height_m - float(p.burial_m), 0.0),
-                                      nominal=bool(p.nominal)))
+                                      nominal=bool(p.nominal), cut=gen is not None))
         return fp
 
     def trace_all(ready: list[_Ready]) -> list[Signature]:

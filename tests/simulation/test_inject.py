@@ -223,6 +223,7 @@ def test_swath_end_lets_shadows_run_off_the_far_edge(rng, max_tries):
     assert opened[:len(closed)] == closed
     cut = opened[len(closed):]
     assert cut and all(t.footprint[3] == cols for t in cut), [t.footprint for t in opened]
+    assert all(t.cut for t in cut) and not any(t.cut for t in closed)
     for t in opened:
         assert 50.0 <= t.range_m <= 59.5 and 0 <= t.col < cols
     # the extra targets changed nothing outside their footprints, and overlap nothing
