@@ -107,6 +107,8 @@ def _evaluate(args: argparse.Namespace, settings, out: Path) -> int:
         text = f"# Evaluation of {args.log}\n\n{res.targets} targets, {res.covered_km2:.4f} km² covered.\n\n"
         if clutter is not None:
             text += f"The node, as published: {res.stats['node_false_alarm_anatomy_text']}.\n\n"
+        if res.stats.get("navigation_report"):  # do the legs agree? (fusion.navcheck)
+            text += f"{res.stats['navigation_report'][0].upper()}{res.stats['navigation_report'][1:]}.\n\n"
         text += rows_markdown(res.rows) + "\n\n" + "\n".join(
             f"- claim {k}: **{'holds' if ok else 'does not hold'}** ({why})" for k, (ok, why) in res.claims.items())
         (out / "evaluation.md").write_text(text + "\n")

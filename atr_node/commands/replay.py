@@ -199,6 +199,8 @@ def notes_text(summary: dict) -> str:
         parts.append(f"{summary['seq_repeats']} tiles repeat a seq")
     if summary.get("strip_breaks"):
         parts.append("strips restarted: " + ", ".join(f"{k} x {v}" for k, v in sorted(summary["strip_breaks"].items())))
+    if summary.get("navigation"):
+        parts.append(summary["navigation"])
     return "".join(f"; {p}" for p in parts)
 
 

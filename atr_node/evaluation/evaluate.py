@@ -94,8 +94,11 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
         first = _run(settings, log_path, model=model, online=online, mosaic=None, progress=progress, sweep=False)
         node_contacts, model = first.node_contacts, first.model
         online_stats = {"online_switched_at": first.stats.get("online_switched_at"),
-                        "node_pass_detect_s": first.stats.get("detect_s")}
-    run = _run(settings, log_path, model=model, online=None, mosaic=mosaic, progress=progress, sweep=True)
+                        "node_pass_detect_s": first.stats.get("detect_s"),
+                        # do the legs agree: as the node saw it (the second pass logs nothing again)
+                        **{k: first.stats.get(k) for k in ("leg_shifts", "navigation", "navigation_report")}}
+    run = _run(settings, log_path, model=model, online=None, mosaic=mosaic, progress=progress, sweep=True,
+               log_nav=online is None)
     if node_contacts is not None:
         run.node_contacts = node_contacts
         run.stats.update(online_stats)
@@ -199,14 +202,14 @@ def _node_agreement(node_row: Row, ds_row: Row, f_all: FusionResult, run: Evalua
             f"{f_all.name} Pd {ds_row.pd:.2f} with {ds_row.false_alarms:g} FA ({why})")
 
 
-def _run(settings, log_path, *, model, online, mosaic, progress, sweep: bool) -> EvaluationRun:
+def _run(settings, log_path, *, model, online, mosaic, progress, sweep: bool, log_nav: bool = True) -> EvaluationRun:
     from ..node.service import open_recording
 
     rec = settings.recording
     records = open_recording(log_path, crs=rec.crs, altitude=rec.altitude, frequency=rec.frequency)
     return run_pipeline(settings, records, model=model, online=online, progress=progress,
                         keep_pixels=mosaic.add if mosaic is not None else None,
-                        sweep_factors=SWEEP_FACTORS if sweep else ())
+                        sweep_factors=SWEEP_FACTORS if sweep else (), log_nav=log_nav)
 
 
 def check_claims(singles: dict[str, RocCurve], run: EvaluationRun, *, and3: RocCurve, and4: RocCurve, or4: RocCurve,

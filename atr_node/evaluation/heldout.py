@@ -53,7 +53,7 @@ import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import cv2
 import numpy as np
@@ -420,6 +420,42 @@ class _Leg:
         st = self.side_unit("stbd")
         return (self.nav_offset_m[0] + self.nav_drift_m_per_100m[0] * along_m / 100.0 + wob * st[0],
                 self.nav_offset_m[1] + self.nav_drift_m_per_100m[1] * along_m / 100.0 + wob * st[1])
+
+
+def legs_of_scene(info: Mapping[str, Any]) -> list[_Leg]:
+    """The legs a scene was rendered with, rebuilt from its ``scene.json`` (``info``): geometry
+    and nav errors, for the truth of what the recorded nav got wrong (:meth:`_Leg.nav_error`)."""
+    dx = float(info["dx_m"])
+    pings = int(round(float(info["leg_length_m"]) / dx)) + 1
+    out = []
+    for p in info["per_leg"]:
+        k, north = int(p["leg"]), float(p["heading_deg"]) == 0.0
+        out.append(_Leg(index=k, heading_deg=float(p["heading_deg"]), start_e_m=k * float(info["leg_spacing_m"]),
+                        start_n_m=0.0 if north else (pings - 1) * dx, pings=pings, t0_s=0.0,
+                        nav_offset_m=(float(p["nav_offset_east_m"]), float(p["nav_offset_north_m"])),
+                        nav_drift_m_per_100m=(float(p["nav_drift_east_m_per_100m"]),
+                                              float(p["nav_drift_north_m_per_100m"])),
+                        nav_wobble=(float(p["nav_wobble_m"]), float(p["nav_wobble_wavelength_m"]),
+                                    float(p["nav_wobble_phase_rad"])),
+                        dx_m=dx, max_range_m=float(info["max_range_m"])))
+    return out
+
+
+def leg_shift_truth(info: Mapping[str, Any], leg_a: int, leg_b: int, points_en: np.ndarray) -> np.ndarray | None:
+    """The generator's truth of a pair of legs' shift (what :mod:`atr_node.fusion.navcheck`
+    measures): the mean over ``points_en`` (world east, north: the scene's objects) that both
+    legs image of ``nav_error_b - nav_error_a`` there, (east, north); None if no point is
+    imaged by both. The recorded nav is the true track plus the error, so an object is placed
+    that much off by each leg."""
+    legs = {lg.index: lg for lg in legs_of_scene(info)}
+    a, b = legs[leg_a], legs[leg_b]
+    d = []
+    for e, n in np.asarray(points_en, dtype=np.float64).reshape(-1, 2):
+        if a.covers(e, n) and b.covers(e, n):
+            ea = np.array(a.nav_error(np.array(a.leg_coords(e, n, "stbd")[0])), dtype=np.float64)
+            eb = np.array(b.nav_error(np.array(b.leg_coords(e, n, "stbd")[0])), dtype=np.float64)
+            d.append(eb - ea)
+    return np.mean(d, axis=0) if d else None
 
 
 def _make_legs(rng: np.random.Generator, legs: int, leg_length_m: float, v: Variant = Variant()) -> list[_Leg]:

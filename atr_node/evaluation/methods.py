@@ -72,10 +72,14 @@ class EvaluationRun:
 def run_pipeline(settings: Settings, records: Iterable[LogRecord], *, model: PerformanceModel, online: Any = None,
                  workers: int = 1, progress: Callable[[int, int], None] | None = None,
                  sweep_factors: Sequence[float] = SWEEP_FACTORS,
-                 keep_pixels: Callable[[np.ndarray, TileGeometry], None] | None = None) -> EvaluationRun:
+                 keep_pixels: Callable[[np.ndarray, TileGeometry], None] | None = None,
+                 log_nav: bool = True) -> EvaluationRun:
     """Replay ``records`` through the node's pipeline, keeping every unit's detect result
-    (and handing each core's pixels with their geometry to ``keep_pixels``, for a mosaic)."""
+    (and handing each core's pixels with their geometry to ``keep_pixels``, for a mosaic).
+    ``log_nav`` False: the navigation check measures and reports but logs no pair (a second
+    pass over a recording whose first pass logged them)."""
     pipe = Pipeline(settings, model=model, workers=workers, mode="replay", online=online)
+    pipe.navcheck.log_pairs = log_nav
     units: list[UnitRecord] = []
     sweeps: dict[str, tuple[float, ...]] = {}
 
@@ -107,7 +111,11 @@ def run_pipeline(settings: Settings, records: Iterable[LogRecord], *, model: Per
         return EvaluationRun(settings, pipe.frame, units, pipe.contacts, pipe.model, sweeps,
                              stats={"tiles": pipe.stats.tiles_in, "units": pipe.stats.units,
                                     "pixels": pipe.stats.pixels, "detect_s": pipe.stats.detect_s,
-                                    "online_switched_at": getattr(pipe.online, "switched_at", None)},
+                                    "online_switched_at": getattr(pipe.online, "switched_at", None),
+                                    # fusion.navcheck: each pair of legs' shift, and the pairs beyond the gate
+                                    "leg_shifts": pipe.navcheck.figures(),
+                                    "navigation": pipe.navcheck.summary(),
+                                    "navigation_report": pipe.navcheck.report()},
                              covered_km2=pipe.grid.covered_cells() * cell_km2)
     finally:
         pipe.close()

@@ -61,6 +61,7 @@ from ..errors import AtrError, TileError
 from ..fusion import ContactTracker, EvidenceGrid, Observation
 from .evidence import evidence_layers, unit_observations
 from ..fusion import association_gate_m
+from ..fusion.navcheck import NavCheck
 from ..geo import MissionFrame, OriginEstimator, tile_geometry
 from ..io.atrlog import LogRecord
 from ..records.nav import NavFix, NavTrack
@@ -231,6 +232,10 @@ class Pipeline:
         self.layers = evidence_layers(settings.fusion.evidence, model, self.enabled)
         """The grid's evidence layers: ("look",) for look-level evidence (SPEC 6.1), else the detectors."""
         self.grid = EvidenceGrid(settings.fusion, gate_m=self.gate_m, detectors=self.enabled, layers=self.layers)
+        self.navcheck = NavCheck(gate_m=self.gate_m, gate_sigmas=settings.fusion.gate_sigmas,
+                                 nav_sigma_m=settings.fusion.nav_sigma_m, length_m=settings.template.length_m)
+        """Do the legs see the same objects within the gate? (:mod:`~atr_node.fusion.navcheck`:
+        each closed leg against those before it; logs a shift beyond the gate, changes nothing)"""
         self._bg: dict[tuple[int, str], tuple[BackgroundTracker, BackgroundTracker]] = {}
         """Per (leg, side): trackers of the background b(j) and the median m(j)."""
         self._arrival: dict[tuple[str, int], float] = {}
@@ -383,6 +388,7 @@ class Pipeline:
                 self._submit(unit)
         self._collect(block=True)
         self.grid.close_all()
+        self._check_nav()
         self._update_contacts(self._last_t)
 
     def close(self) -> None:
@@ -733,6 +739,8 @@ class Pipeline:
             self.grid.add_observation(Observation(unit.leg, t, geometry, tuple(observations)))
             if unit.closes_leg and unit.leg in self.grid.open:
                 self.grid.close_leg(unit.leg)
+            if len(self.grid.closed_legs) > len(self.navcheck.checked):
+                self._check_nav()
         except AtrError as exc:  # e.g. a leg number reused after the leg was closed
             self.stats.rejections[f"fusion: {type(exc).__name__}"] += 1
             log.error("leg %d %s: evidence rejected: %s", unit.leg, unit.side, exc)
@@ -753,6 +761,18 @@ class Pipeline:
         timing.fused = time.monotonic()
         self.stats.stages.append(timing)
         self.stats.fuse_s += time.perf_counter() - t0
+
+    def _check_nav(self) -> None:
+        """Do the legs agree (:attr:`navcheck`)? A diagnostic: whatever goes wrong in it is
+        logged once and counted, never lost evidence."""
+        try:
+            self.navcheck.update(self.grid.detections, self.grid.closed_legs)
+        except Exception as exc:  # noqa: BLE001 - the check must never stop the node
+            key = f"navigation check: {type(exc).__name__}"
+            if not self.stats.rejections[key]:
+                log.error("navigation check failed, evidence and contacts unaffected: %s", exc)
+            self.stats.rejections[key] += 1
+            self.navcheck.checked |= set(self.grid.closed_legs)
 
     def _update_contacts(self, t: float) -> None:
         if self.tracker is None:

@@ -297,6 +297,7 @@ class NodeService:
 
     def summary(self) -> dict[str, Any]:
         st = self.pipeline.stats
+        nc = self.pipeline.navcheck
         p50, p99 = st.latency_ms()
         return {"records": st.records, "tiles_in": st.tiles_in, "tiles_done": st.tiles_done,
                 "tiles_rejected": st.tiles_rejected, "tiles_dropped": st.tiles_dropped,
@@ -308,6 +309,8 @@ class NodeService:
                 "snapshots": self.snapshots, "snapshot_failures": self.snapshot_failures,
                 "resumed_from": self.resumed_from, "model": self.pipeline.model_report(),
                 "contact_seq": self.pipeline.contact_seq,
+                # do the legs see the same objects within the association gate? (fusion.navcheck)
+                "leg_shifts": nc.figures(), "navigation": nc.summary(),
                 # DS masses clamped to 1 - eps (SPEC section 6): evidence the grid had to cap
                 "clamped": int(self.pipeline.grid.n_clamped),
                 "seq_repeats": 0 if self.pipeline.strips is None else self.pipeline.strips.seq_repeats,

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 TOOLS = Path(__file__).resolve().parents[2] / "tools" / "bench"
 sys.path.insert(0, str(TOOLS))
@@ -56,6 +57,14 @@ def test_quality_benchmark_scores_every_method_and_checks(tmp_path):
             assert f["fa_at_0.8"] == math.inf
     pooled = body["pooled_fa_anatomy"]["base / DS look (default)"]["op"]
     assert pooled == {k: ds["fa_anatomy"]["op"][k] for k in pooled}
+    # do the legs agree: the node's shift of its two legs against the generator's nav errors
+    (shift,) = scene["leg_shifts"]
+    assert (shift["leg_a"], shift["leg_b"]) == (0, 1) and shift["truth_distance_m"] is not None
+    assert shift["error_m"] == pytest.approx(math.hypot(shift["east_m"] - shift["truth_east_m"],
+                                                        shift["north_m"] - shift["truth_north_m"]), abs=2e-3)
+    if shift["support"] >= 5:
+        assert body["pooled_leg_shifts"]["base"]["pairs"] == 1
+        assert "Do the legs agree?" in (out / "quality.md").read_text()
 
 
 def test_quality_benchmark_scores_a_real_recording_for_every_method(real_data, tmp_path):

@@ -372,8 +372,59 @@ def score_scene(scene_dir: Path, settings, *, online: str, progress=None) -> dic
             ds_curve.fa_at_pd(p.pd) if p.pd > 0 else 0.0)
     pairs = look_pd_pairs(run, t_en, en)
     out["look_pd"] = {**pd_fidelity(pairs), "rows": [[round(r, 2), round(pd, 4), bool(det)] for r, pd, det in pairs]}
+    out["leg_shifts"] = leg_shift_figures(scene_dir, run)
     out["seconds"] = round(time.monotonic() - t0, 1)
     out["checks"] = checks(out, settings)
+    return out
+
+
+def leg_shift_figures(scene_dir: Path, run) -> list[dict]:
+    """Per pair of legs, the node's measured shift (:mod:`atr_node.fusion.navcheck`, from
+    ``run.stats``) against the generator's truth (:func:`~atr_node.evaluation.heldout.leg_shift_truth`
+    over the scene's targets and rocks both legs image; empty without a ``scene.json``)."""
+    from atr_node.evaluation.heldout import leg_shift_truth
+
+    info_path = scene_dir / "scene.json"
+    if not info_path.is_file():
+        return []
+    info = json.loads(info_path.read_text())
+    pts = []
+    for name in ("truth.csv", "clutter.csv", "one_leg.csv"):
+        if (scene_dir / name).is_file():
+            with open(scene_dir / name, newline="") as fh:
+                pts += [(float(r["east_m"]), float(r["north_m"])) for r in csv.DictReader(fh)]
+    out = []
+    for x in run.stats.get("leg_shifts", ()):
+        t = leg_shift_truth(info, x["leg_a"], x["leg_b"], np.array(pts))
+        out.append({**x, "truth_east_m": None if t is None else round(float(t[0]), 3),
+                    "truth_north_m": None if t is None else round(float(t[1]), 3),
+                    "truth_distance_m": None if t is None else round(float(np.hypot(*t)), 3),
+                    "error_m": (None if t is None
+                                else round(float(np.hypot(x["east_m"] - t[0], x["north_m"] - t[1])), 3))})
+    return out
+
+
+def pooled_leg_shifts(results: list[dict]) -> dict[str, dict]:
+    """Per variant: pairs of legs whose shift the check believes (as many objects agree as it
+    asks before it flags: :data:`~atr_node.fusion.navcheck.MIN_SUPPORT`, ``CHANCE_FACTOR``
+    times the chance agreement), their error against the truth (median, 90th percentile,
+    largest), pairs flagged beyond the gate, and the largest true shift among them."""
+    from atr_node.fusion.navcheck import CHANCE_FACTOR, MIN_SUPPORT
+
+    groups: dict[str, list[dict]] = {}
+    for r in results:
+        groups.setdefault(r.get("variant", "base"), []).extend(
+            x for x in r.get("leg_shifts", ())
+            if x["support"] >= max(MIN_SUPPORT, CHANCE_FACTOR * x.get("chance", 0.0)) and x["error_m"] is not None)
+    out = {}
+    for name, xs in groups.items():
+        if not xs:
+            continue
+        err = np.array([x["error_m"] for x in xs])
+        out[name] = {"pairs": len(xs), "error_median_m": round(float(np.median(err)), 2),
+                     "error_p90_m": round(float(np.percentile(err, 90)), 2), "error_max_m": round(float(err.max()), 2),
+                     "flagged": sum(1 for x in xs if x["flagged"]),
+                     "truth_distance_max_m": round(max(x["truth_distance_m"] for x in xs), 2)}
     return out
 
 
@@ -558,6 +609,13 @@ def markdown(results: list[dict]) -> str:
                 + (f", {b['model_pd']:.2f} / {b['detected']:.2f}, {b['log_loss']}" if b["pairs"] else "")
                 for b in f["bands"]))
         lines.append("")
+        lines.append("Do the legs agree? (fusion.navcheck: each pair of legs' shift, measured on the objects both see, "
+                     "against the generator's nav errors; the pairs whose shift the check believes)")
+        for name, g in pooled_leg_shifts(results).items():
+            lines.append(f"- {name}: {g['pairs']} pairs, error median {g['error_median_m']} m, 90th percentile "
+                         f"{g['error_p90_m']} m, largest {g['error_max_m']} m; flagged beyond the gate {g['flagged']} "
+                         f"(largest true shift {g['truth_distance_max_m']} m)")
+        lines.append("")
         lines.append("Reliability pooled over each variant's scenes (DS look): Bel bin -> contacts, share on a target "
                      "[95 % Wilson interval]")
         for name, g in pooled_reliability(results).items():
@@ -717,6 +775,7 @@ def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv, 
                                                       + " ".join(argv or sys.argv[1:]),
                                                       "scenes": results, "pooled_reliability": pooled_reliability(results),
                                                       "pooled_fa_anatomy": pooled_fa_anatomy(results),
+                                                      "pooled_leg_shifts": pooled_leg_shifts(results),
                                                       "recordings": recordings},
                                                      indent=1, default=float) + "\n")
     except OSError as exc:
