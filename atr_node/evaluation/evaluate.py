@@ -96,7 +96,7 @@ def evaluate_log(settings: Settings, log_path: str | Path, truth_path: str | Pat
         online_stats = {"online_switched_at": first.stats.get("online_switched_at"),
                         "node_pass_detect_s": first.stats.get("detect_s"),
                         # do the legs agree: as the node saw it (the second pass logs nothing again)
-                        **{k: first.stats.get(k) for k in ("leg_shifts", "navigation", "navigation_report")}}
+                        **{k: first.stats.get(k) for k in ("leg_shifts", "navigation_report")}}
     run = _run(settings, log_path, model=model, online=None, mosaic=mosaic, progress=progress, sweep=True,
                log_nav=online is None)
     if node_contacts is not None:

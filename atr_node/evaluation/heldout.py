@@ -423,22 +423,17 @@ class _Leg:
 
 
 def legs_of_scene(info: Mapping[str, Any]) -> list[_Leg]:
-    """The legs a scene was rendered with, rebuilt from its ``scene.json`` (``info``): geometry
-    and nav errors, for the truth of what the recorded nav got wrong (:meth:`_Leg.nav_error`)."""
-    dx = float(info["dx_m"])
-    pings = int(round(float(info["leg_length_m"]) / dx)) + 1
-    out = []
-    for p in info["per_leg"]:
-        k, north = int(p["leg"]), float(p["heading_deg"]) == 0.0
-        out.append(_Leg(index=k, heading_deg=float(p["heading_deg"]), start_e_m=k * float(info["leg_spacing_m"]),
-                        start_n_m=0.0 if north else (pings - 1) * dx, pings=pings, t0_s=0.0,
-                        nav_offset_m=(float(p["nav_offset_east_m"]), float(p["nav_offset_north_m"])),
-                        nav_drift_m_per_100m=(float(p["nav_drift_east_m_per_100m"]),
-                                              float(p["nav_drift_north_m_per_100m"])),
-                        nav_wobble=(float(p["nav_wobble_m"]), float(p["nav_wobble_wavelength_m"]),
-                                    float(p["nav_wobble_phase_rad"])),
-                        dx_m=dx, max_range_m=float(info["max_range_m"])))
-    return out
+    """The legs a scene was rendered with, as its ``scene.json`` (``info``) records them:
+    geometry and nav errors, for the truth of what the recorded nav got wrong
+    (:meth:`_Leg.nav_error`)."""
+    return [_Leg(index=int(p["leg"]), heading_deg=float(p["heading_deg"]), start_e_m=float(p["start_east_m"]),
+                 start_n_m=float(p["start_north_m"]), pings=int(p["pings"]), t0_s=float(p["t0_s"]),
+                 nav_offset_m=(float(p["nav_offset_east_m"]), float(p["nav_offset_north_m"])),
+                 nav_drift_m_per_100m=(float(p["nav_drift_east_m_per_100m"]), float(p["nav_drift_north_m_per_100m"])),
+                 nav_wobble=(float(p["nav_wobble_m"]), float(p["nav_wobble_wavelength_m"]),
+                             float(p["nav_wobble_phase_rad"])),
+                 dx_m=float(info["dx_m"]), max_range_m=float(info["max_range_m"]))
+            for p in info["per_leg"]]
 
 
 def leg_shift_truth(info: Mapping[str, Any], leg_a: int, leg_b: int, points_en: np.ndarray) -> np.ndarray | None:

@@ -112,9 +112,8 @@ def run_pipeline(settings: Settings, records: Iterable[LogRecord], *, model: Per
                              stats={"tiles": pipe.stats.tiles_in, "units": pipe.stats.units,
                                     "pixels": pipe.stats.pixels, "detect_s": pipe.stats.detect_s,
                                     "online_switched_at": getattr(pipe.online, "switched_at", None),
-                                    # fusion.navcheck: each pair of legs' shift, and the pairs beyond the gate
+                                    # fusion.navcheck: each pair of legs' shift, and one line on them
                                     "leg_shifts": pipe.navcheck.figures(),
-                                    "navigation": pipe.navcheck.summary(),
                                     "navigation_report": pipe.navcheck.report()},
                              covered_km2=pipe.grid.covered_cells() * cell_km2)
     finally:

@@ -84,6 +84,12 @@ class LegShift:
         return math.hypot(self.east_m, self.north_m)
 
 
+def believed(support: int, chance: float, *, min_support: int = MIN_SUPPORT) -> bool:
+    """Enough objects agree on a shift to believe it: at least ``min_support`` and
+    :data:`CHANCE_FACTOR` times the agreement expected by chance (:attr:`LegShift.chance`)."""
+    return support >= max(min_support, CHANCE_FACTOR * chance)
+
+
 def leg_anchors(records: Iterable, *, min_confidence: float = MIN_CONFIDENCE) -> dict[int, np.ndarray]:
     """Leg -> (k, 2) distinct (east, north) anchors of its point detections with confidence >=
     ``min_confidence`` (extended objects, whose anchor is a centre, are left out)."""
@@ -100,9 +106,9 @@ def near_pairs(pa: np.ndarray, pb: np.ndarray, search_m: float) -> np.ndarray:
     sorted."""
     if not len(pa) or not len(pb):
         return np.zeros((0, 2), dtype=np.intp)
-    hits = cKDTree(pb).query_ball_point(pa, r=search_m)
-    ij = [(i, j) for i, js in enumerate(hits) for j in sorted(js)]
-    return np.array(ij, dtype=np.intp).reshape(-1, 2)
+    near = cKDTree(pa).sparse_distance_matrix(cKDTree(pb), search_m, output_type="ndarray")
+    ij = np.column_stack([near["i"], near["j"]]).astype(np.intp)
+    return ij[np.lexsort((ij[:, 1], ij[:, 0]))]
 
 
 def shift_mode(d: np.ndarray, search_m: float, mode_m: float) -> tuple[np.ndarray, np.ndarray]:
@@ -211,8 +217,8 @@ class NavCheck:
         return found
 
     def believed(self, s: LegShift) -> bool:
-        """Enough objects agree on ``s``: ``min_support`` and :data:`CHANCE_FACTOR` times chance."""
-        return s.support >= max(self.min_support, CHANCE_FACTOR * s.chance)
+        """:func:`believed` with this check's ``min_support``."""
+        return believed(s.support, s.chance, min_support=self.min_support)
 
     def figures(self) -> list[dict]:
         """Every pair checked, as JSON-ready maps (the end-of-run summary's ``leg_shifts``)."""

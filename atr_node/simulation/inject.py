@@ -380,12 +380,12 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
     def usable(sig: Signature) -> bool:
         return not (sig.empty or (sig.echo.max() <= 0 and sig.p_shadow.max() <= 0))
 
-    def finish(r: _Ready, sig: Signature, check: bool, gen: np.random.Generator | None = None
-               ) -> tuple[int, int, int, int] | None:
+    def finish(r: _Ready, sig: Signature, check: bool, gen: np.random.Generator | None = None, *,
+               cut: bool = False) -> tuple[int, int, int, int] | None:
         """Blend a traced placement into the host and record it: its footprint, or None when
         the checks on the traced signature refuse it (``check`` without :data:`PRECHECK`).
-        ``gen``: given for the swath-end targets only (:func:`place_cut`), the generator of
-        their speckle (else ``rng``); they are recorded ``cut``."""
+        ``gen``: the generator of its speckle (default ``rng``); ``cut``: a swath-end target
+        (:func:`place_cut`), recorded so."""
         p = r.p
         sig = blur_along_track(sig, r.kernel, rows)
         fp = sig.footprint
@@ -406,7 +406,7 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
                                       scale=tuple(float(f) for f in p.scale), roll_deg=float(p.roll_deg),
                                       pitch_deg=float(p.pitch_deg),
                                       height_m=max(r.local.height_m - float(p.burial_m), 0.0),
-                                      nominal=bool(p.nominal), cut=gen is not None))
+                                      nominal=bool(p.nominal), cut=cut))
         return fp
 
     def trace_all(ready: list[_Ready]) -> list[Signature]:
@@ -442,7 +442,7 @@ def inject_targets(pixels: np.ndarray, *, range0_m: float, dr_m: float, dx_m: fl
             ready.append(r)
         for r, sig in zip(ready, trace_all(ready)):
             if usable(sig):
-                finish(r, sig, False, gen)
+                finish(r, sig, False, gen, cut=True)
 
     # Random targets keep the SMF context window (SPEC 2.3) of each other and of the edges.
     gap = (int(math.ceil(template.context_factor * template.length_m / dx_m / 2)),

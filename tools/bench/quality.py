@@ -405,17 +405,16 @@ def leg_shift_figures(scene_dir: Path, run) -> list[dict]:
 
 
 def pooled_leg_shifts(results: list[dict]) -> dict[str, dict]:
-    """Per variant: pairs of legs whose shift the check believes (as many objects agree as it
-    asks before it flags: :data:`~atr_node.fusion.navcheck.MIN_SUPPORT`, ``CHANCE_FACTOR``
-    times the chance agreement), their error against the truth (median, 90th percentile,
-    largest), pairs flagged beyond the gate, and the largest true shift among them."""
-    from atr_node.fusion.navcheck import CHANCE_FACTOR, MIN_SUPPORT
+    """Per variant: pairs of legs whose shift the check believes (the rule it flags by,
+    :func:`atr_node.fusion.navcheck.believed`), their error against the truth (median, 90th
+    percentile, largest), pairs flagged beyond the gate, and the largest true shift among them."""
+    from atr_node.fusion.navcheck import believed
 
     groups: dict[str, list[dict]] = {}
     for r in results:
         groups.setdefault(r.get("variant", "base"), []).extend(
             x for x in r.get("leg_shifts", ())
-            if x["support"] >= max(MIN_SUPPORT, CHANCE_FACTOR * x.get("chance", 0.0)) and x["error_m"] is not None)
+            if believed(x["support"], x.get("chance", 0.0)) and x["error_m"] is not None)
     out = {}
     for name, xs in groups.items():
         if not xs:
