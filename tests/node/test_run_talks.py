@@ -25,10 +25,18 @@ from atr_node.io.atrlog import read_atrlog
 REPO = Path(__file__).resolve().parents[2]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def _free_ports(n: int) -> list[int]:
+    """``n`` distinct free ports: every socket stays bound until all are chosen (one bound and
+    closed at a time, the system may hand the same port out twice: a PUB socket then failed to
+    bind where the sonar PUSH already was: seen once in a loaded CI run, 2026-11-29)."""
+    socks = [socket.socket() for _ in range(n)]
+    try:
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
 
 
 def _config(tmp_path: Path, sonar: str, publish: str, snapshot: str) -> Path:
@@ -90,7 +98,7 @@ class _Stderr:
 def test_run_logs_its_endpoints_links_model_first_tile_and_one_line_at_exit(small_mission, tmp_path):
     _settings, _cfg, files = small_mission
     tile = next(r.msg for r in read_atrlog(files.atrlog) if r.link == "sonar")
-    ports = [_free_port() for _ in range(3)]
+    ports = _free_ports(3)
     sonar, publish, snapshot = (f"tcp://127.0.0.1:{p}" for p in ports)
     cfg = _config(tmp_path, sonar, publish, snapshot)
     push = zmq.Context.instance().socket(zmq.PUSH)
