@@ -71,7 +71,22 @@ def _plain(doc: str) -> str:
     return text.replace("``", "")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _chosen(argv: list[str]) -> str | None:
+    """The subcommand named on a command line, if any: the first word that is not an option
+    (the top-level options, -v and --version, take no value)."""
+    for word in argv:
+        if word == "--":
+            return None
+        if not word.startswith("-"):
+            return word if word in COMMANDS else None
+    return None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The whole parser; with ``only``, only that subcommand's module is imported (none for
+    ``only=""``) and the others are listed by their one-line help: what ``atr-node CMD ...`` and
+    ``atr-node --help`` need. A command's module may import numpy, scipy and OpenCV; the
+    others' need not load to run it."""
     parser = argparse.ArgumentParser(
         prog="atr-node",
         description="Automatic target recognition for mine-hunting AUV synthetic aperture sonar: four detectors, "
@@ -81,7 +96,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv: debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (help_text, issue) in COMMANDS.items():
-        if _is_built(name):
+        if only is not None and name != only:
+            sub.add_parser(name, help=help_text if _is_built(name) else f"{help_text} [not built yet]")
+        elif _is_built(name):
             mod = importlib.import_module(_module_name(name))
             detail = getattr(mod, "EXIT_DETAIL", "")
             p = sub.add_parser(name, help=help_text, description=_plain(mod.__doc__ or help_text),
@@ -99,7 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(only=_chosen(sys.argv[1:] if argv is None else argv) or "")
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")

@@ -55,7 +55,7 @@ def recording_deltas(path: str, settings: Settings, model: PerformanceModel, nod
     """Replay one recording (.atrlog or .xtf) through the node's pipeline; return its deltas."""
     from ..node.exchange import attach_exchange
     from ..node.pipeline import Pipeline
-    from ..node.service import open_recording
+    from ..io.recording import open_recording
 
     t0, c0 = time.perf_counter(), time.process_time()
     if not Path(path).is_file():

@@ -81,9 +81,9 @@ def synthetic_images(n: int, *, settings: Any, rows: int, cols: int, seed: int, 
 
 def images_from_recording(path: str | Path, *, settings: Any, max_images: int, crs: str = "") -> list[CalibrationImage]:
     """The first ``max_images`` sonar tiles of a recording (``.atrlog``, ``.xtf`` or ``.jsf``,
-    read as replay reads it: :func:`atr_node.node.service.open_recording`, positions in ``crs``
+    read as replay reads it: :func:`atr_node.io.recording.open_recording`, positions in ``crs``
     if projected metres)."""
-    from ..node.service import open_recording
+    from ..io.recording import open_recording
     from ..records.tile import Tile
 
     rec_s = settings.recording

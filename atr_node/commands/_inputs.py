@@ -17,13 +17,13 @@ def require_sonar_tile(path: str | Path, *, crs: str = "", frequency: str | floa
     own one-line error (missing, empty, not a recording). XTF and JSF are read with their
     recorded altitude: tracking the first bottom return here would only repeat the work the
     command's own read does on the same first block."""
-    from ..node.service import open_recording
-
     p = Path(path)
     if p.is_dir():
         raise AtrError(f"{p}: a folder; expected a recording file (.atrlog, .xtf or .jsf)")
     if not p.exists():
         raise AtrError(f"{p}: cannot open: No such file or directory; expected a recording (.atrlog, .xtf or .jsf)")
+    from ..io.recording import open_recording
+
     records = 0
     for rec in open_recording(p, crs=crs, altitude="altimeter", frequency=frequency):
         if rec.link == "sonar":

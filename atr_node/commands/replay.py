@@ -93,11 +93,6 @@ def build_model(settings, model_path: str | None, online: str, *, deterministic:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hw.replay import IterLink, Paced
-
-    from ..node.service import NodeService, open_recording, write_contacts, write_detections
-    from ..node.snapshot_endpoint import node_snapshot_endpoint
-
     settings = resolve_frequency(getattr(args, "frequency", None), load_settings(args.config))
     speed = _speed(args.speed)
     publish_where = "--publish" if args.publish is not None else "links.publish_endpoint"
@@ -109,6 +104,13 @@ def run(args: argparse.Namespace) -> int:
     # checked first: a recording that cannot be read, holds no tile or needs --crs fails before the node starts
     crs = resolve_crs(getattr(args, "crs", None), settings)
     require_sonar_tile(args.log, crs=crs, frequency=settings.recording.frequency)
+    # the node (detectors, fusion, their scipy and OpenCV) loads once the input is known good
+    from hw.replay import IterLink, Paced
+
+    from ..io.recording import open_recording
+    from ..node.service import NodeService, write_contacts, write_detections
+    from ..node.snapshot_endpoint import node_snapshot_endpoint
+
     recording = open_recording(args.log, crs=crs, altitude=settings.recording.altitude,
                                frequency=settings.recording.frequency)
     model, online = build_model(settings, args.model, args.online_calibration, deterministic=True)

@@ -203,7 +203,7 @@ def _node_agreement(node_row: Row, ds_row: Row, f_all: FusionResult, run: Evalua
 
 
 def _run(settings, log_path, *, model, online, mosaic, progress, sweep: bool, log_nav: bool = True) -> EvaluationRun:
-    from ..node.service import open_recording
+    from ..io.recording import open_recording
 
     rec = settings.recording
     records = open_recording(log_path, crs=rec.crs, altitude=rec.altitude, frequency=rec.frequency)

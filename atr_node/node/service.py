@@ -342,24 +342,3 @@ def write_detections(path: str | Path, pipeline: Pipeline) -> None:
             fh.write(json.dumps({"detector": r.detector, "leg": r.leg, "t": r.t, "lat_deg": float(lat),
                                  "lon_deg": float(lon), "east_m": r.east_m, "north_m": r.north_m,
                                  "gamma": r.gamma, "confidence": r.confidence}) + "\n")
-
-
-def open_recording(path: str | Path, *, crs: str = "", altitude: str = "auto",
-                   frequency: str | float = "high") -> Iterable[LogRecord]:
-    """Records of an .atrlog or an .xtf file, for replay; ``crs``: of XTF positions in
-    projected metres (``--crs``, :mod:`atr_node.io.crs`). A file that needs it and has none
-    fails here, before the first record. ``altitude``: of XTF tiles (``recording.altitude``);
-    ``frequency``: the side-scan channels of a dual-frequency XTF (``recording.frequency``;
-    JSF subsystems are chosen with ``convert --subsystem``)."""
-    p = str(path)
-    if p.lower().endswith(".xtf"):
-        from ..io.xtf import iter_xtf_records
-
-        return iter(iter_xtf_records(p, crs=crs, altitude=altitude, frequency=frequency))
-    if p.lower().endswith(".jsf"):  # EdgeTech JSF: same records, same options (:mod:`atr_node.io.jsf`)
-        from ..io.jsf import iter_jsf_records
-
-        return iter(iter_jsf_records(p, crs=crs, altitude=altitude, frequency=frequency))
-    from ..io.atrlog import AtrLogReader
-
-    return AtrLogReader(p)  # iterable, and keeps its counts (records rejected, garbage) for the summary

@@ -78,7 +78,7 @@ def test_the_clip_level_is_where_integer_samples_pile_up(wire, top, clip):
 
 
 def test_the_iver2_file_clips_at_32767(real_data):
-    from atr_node.node.service import open_recording
+    from atr_node.io.recording import open_recording
 
     tiles = [Tile.from_map(r.msg) for r in open_recording(real_data / "xtf" / "scotsman-iver2.xtf")
              if r.link == "sonar"]

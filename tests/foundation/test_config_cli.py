@@ -113,3 +113,36 @@ def test_cli_info_reports_bad_config(tmp_path, capsys):
 def test_console_entry_point_runs():
     r = subprocess.run([sys.executable, "-m", "atr_node", "--version"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and "atr-node" in r.stdout
+
+
+def test_a_command_loads_only_its_own_module():
+    """``atr-node CMD ...`` imports CMD's module and no other command's (a command's module may
+    pull in scipy and OpenCV: the error path and --help of a light command stay quick), the
+    top-level --help imports none, and every command's parser is still the full one."""
+    probe = ("import sys, contextlib, io\n"
+             "from atr_node.cli import main\n"
+             "with contextlib.redirect_stdout(io.StringIO()):\n"
+             "    try:\n"
+             "        main(sys.argv[1:])\n"
+             "    except SystemExit:\n"
+             "        pass\n"
+             "print(' '.join(sorted(m.rsplit('.', 1)[1] for m in sys.modules\n"
+             "                      if m.startswith('atr_node.commands.') and not m.rsplit('.', 1)[1].startswith('_'))))\n")
+
+    def loaded(*argv):
+        r = subprocess.run([sys.executable, "-c", probe, *argv], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0, r.stderr
+        return r.stdout.split()
+
+    assert loaded("--help") == []
+    assert loaded("-v", "export", "--help") == ["export"]
+    assert loaded("info") == ["info"]
+    assert loaded("bogus") == []  # argparse's "invalid choice", from the one-line listing
+    # the lazy listing keeps each command's own parser whole when it is the one chosen
+    from atr_node.cli import _chosen, build_parser
+
+    assert _chosen(["-v", "-v", "replay", "x.atrlog"]) == "replay"
+    assert _chosen(["--version"]) is None and _chosen(["--", "replay"]) is None and _chosen(["nope"]) is None
+    full, lazy = build_parser(), build_parser(only="convert")
+    argv = ["convert", "a.xtf", "b.atrlog"]
+    assert vars(full.parse_args(argv)) == vars(lazy.parse_args(argv))

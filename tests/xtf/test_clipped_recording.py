@@ -18,7 +18,7 @@ from atr_node.evaluation.waterfall import SidePings, locate_contacts
 from atr_node.geo import MissionFrame
 from atr_node.node import state as node_state
 from atr_node.node.pipeline import Pipeline
-from atr_node.node.service import open_recording
+from atr_node.io.recording import open_recording
 from atr_node.records.tile import Tile
 
 from .conftest import run_cli

@@ -17,7 +17,7 @@ from atr_node.io.atrlog import read_atrlog
 from atr_node.io.jsf import JsfReader, JsfStats, iter_jsf_items, iter_jsf_records
 from atr_node.io.jsf_write import JsfWriter, write_jsf
 from atr_node.io.xtf_packets import KNOT_M_S, XtfNav, XtfPing, XtfSerial
-from atr_node.node.service import open_recording
+from atr_node.io.recording import open_recording
 from atr_node.records.tile import Tile
 
 from .conftest import T0, make_tile

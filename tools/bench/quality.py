@@ -457,7 +457,7 @@ def score_recording(path: Path, settings, *, online: str) -> dict:
     from atr_node.errors import AtrError
     from atr_node.evaluation.waterfall import locate_contacts
     from atr_node.fusion.baselines import and_contacts, or_contacts
-    from atr_node.node.service import open_recording
+    from atr_node.io.recording import open_recording
     from atr_node.records.tile import Tile
 
     rr = _real_tool()

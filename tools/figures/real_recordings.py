@@ -62,7 +62,7 @@ def _replay(path: Path, contacts: Path, summary: Path, extra: list[str]) -> subp
 
 
 def _tiles(path: Path, settings, crs: str, frequency: str | float = "high") -> list[Tile]:
-    from atr_node.node.service import open_recording
+    from atr_node.io.recording import open_recording
 
     records = open_recording(path, crs=crs, altitude=settings.recording.altitude, frequency=frequency)
     return [Tile.from_map(r.msg) for r in records if r.link == "sonar"]
