@@ -173,6 +173,50 @@ def test_pooled_reliability_sums_the_scenes_of_a_variant():
     assert dip["base"]["rises"] is False
 
 
+def test_pooled_checks_sum_each_scene_s_counts():
+    """Two scenes that each fail a per-scene check by one look (12 of 13 multi-look targets
+    above report_bel; one of 5 covered one-leg objects above it): pooled, the counts add up,
+    the shares carry the Wilson interval of the sums (checked against the closed form here),
+    a baseline whose Pd DS never reaches on a scene is pooled over the other scenes only, and
+    the per-scene checks are counted, not replaced."""
+    from atr_node.config import Settings
+
+    a = _scene({"fa_at_pd_of": {"AND-3 (mf+z+lac)": 24.0, "OR": 24.0}, "multi_look_targets": 13,
+                "multi_look_above_report": 12, "one_leg_covered_objects": 5, "one_leg_covered_above_report": 1,
+                "reliability": [{"bel": "[0.5, 0.7)", "contacts": 4, "targets": 0.25, "on_target": 1}]},
+               (0.938, 42))
+    b = _scene({"fa_at_pd_of": {"AND-3 (mf+z+lac)": 50.0, "OR": math.inf}, "multi_look_targets": 13,
+                "multi_look_above_report": 13, "one_leg_covered_objects": 4, "one_leg_covered_above_report": 0,
+                "op_fa": 40, "roc_fa_at_op_pd": 19.0, "no_detection": 2,
+                "reliability": [{"bel": "[0.5, 0.7)", "contacts": 6, "targets": 0.167, "on_target": 1}]},
+               (1.0, 42))
+    b["methods"]["OR"]["pd_max"] = 1.0
+    for sc in (a, b):
+        sc["checks"] = bench_quality.checks(sc, Settings())
+    assert a["checks"]["multi_look_above_report_95pct"] is False and a["checks"]["one_leg_below_report_95pct"] is False
+    g = bench_quality.pooled_checks([a, b])["base"]
+    assert g["scenes"] == 2 and g["targets"] == 32
+    assert g["pd_max"] == {"DS look": 32, "OR": 31}  # round(0.938 * 16) = 15, and 16
+    assert g["fewer"]["AND-3"] == {"scenes": 2, "DS look": 74.0, "AND-3": 84.0}
+    assert g["fewer"]["OR"] == {"scenes": 1, "DS look": 24.0, "OR": 42.0}
+    assert g["fewer"]["DS paper at Pd 0.8"] == {"scenes": 2, "DS look": 42.0, "DS paper": 60.0}
+    assert g["op"] == {"false_alarms": 71, "roc_at_op_pd": 41.0} and g["no_detection"] == 2
+
+    def wilson(k, n, z=1.959963984540054):
+        p = k / n
+        c = (p + z * z / (2 * n)) / (1 + z * z / n)
+        h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+        return round(c - h, 3), round(c + h, 3)
+
+    assert g["multi_look"][:3] == [25, 26, round(25 / 26, 3)] and tuple(g["multi_look"][3:]) == wilson(25, 26)
+    assert g["one_leg"][:3] == [8, 9, round(8 / 9, 3)] and tuple(g["one_leg"][3:]) == wilson(8, 9)
+    assert g["scenes_passing"]["multi_look_above_report_95pct"] == 1
+    assert g["scenes_passing"]["no_contact_without_detection"] == 1
+    assert g["reliability_rises"] is True
+    text = "\n".join(bench_quality.pooled_checks_markdown({"base": g}))
+    assert "multi-look targets above report_bel: 25 of 26, 96.2 %" in text and "OR 24 against 42 (1 of 2 scenes)" in text
+
+
 def test_quality_benchmark_usage_errors(capsys):
     assert bench_quality.main(["--seabeds", "mud"]) == 2
     assert "unknown seabed" in capsys.readouterr().err

@@ -280,6 +280,94 @@ def pooled_fa_anatomy(results: list[dict]) -> dict[str, dict]:
     return out
 
 
+def pooled_checks(results: list[dict]) -> dict[str, dict]:
+    """The done-means of :func:`checks` with each scene's counts summed over the scenes of a
+    variant (as :func:`pooled_reliability` names them). A scene holds 13-14 multi-look targets
+    and 3-6 covered one-leg objects, so one look more or less decides its check; pooled, the
+    shares get a 95 % Wilson interval. This is a reading aid beside the per-scene checks, not
+    a replacement: the issue asks them per scene.
+
+    Per variant: ``targets``; ``pd_max`` (targets on a DS look contact at any Bel, and on OR's);
+    ``fewer`` (per baseline, DS look's false alarms on its ROC at the baseline's own Pd, summed,
+    against the baseline's; at Pd 0.8 and 0.9 against DS paper, over the scenes where both
+    reach it); ``op`` (false alarms at the operating point against the ROC's at the same Pd);
+    ``no_detection``; ``one_leg`` (covered one-leg objects below ``report_bel``) and
+    ``multi_look`` (multi-look targets above it), each ``[k, n, share, low, high]``;
+    ``reliability_rises`` (:func:`pooled_reliability`); ``scenes_passing`` per check."""
+    from atr_node.calibration.stats import wilson_interval
+
+    def share(k: int, n: int) -> list:
+        low, high = wilson_interval(k, n)
+        return [k, n, round(k / n, 3) if n else None, round(float(low), 3), round(float(high), 3)]
+
+    rel = pooled_reliability(results)
+    out: dict[str, dict] = {}
+    for r in results:
+        name = r.get("variant", "base")
+        g = out.setdefault(name, {"scenes": 0, "targets": 0, "pd_max": {"DS look": 0, "OR": 0}, "fewer": {},
+                                  "op": {"false_alarms": 0, "roc_at_op_pd": 0.0}, "no_detection": 0,
+                                  "_one_leg": [0, 0], "_multi": [0, 0], "scenes_passing": {}})
+        m = r["methods"]
+        ds, paper = m["DS look (default)"], m["DS paper (prior 0.1)"]
+        g["scenes"] += 1
+        g["targets"] += int(r["targets"])
+        g["pd_max"]["DS look"] += int(round(ds["pd_max"] * r["targets"]))
+        g["pd_max"]["OR"] += int(round(m["OR"]["pd_max"] * r["targets"]))
+        for base, ds_fa in ds.get("fa_at_pd_of", {}).items():
+            kind = base.split(" (")[0]  # "AND-3 (mf+z+lac)": the best three differ by scene
+            if math.isfinite(ds_fa) and math.isfinite(m[base]["op_fa"]):
+                f = g["fewer"].setdefault(kind, {"scenes": 0, "DS look": 0.0, kind: 0.0})
+                f["scenes"] += 1
+                f["DS look"] += ds_fa
+                f[kind] += m[base]["op_fa"]
+        for p in ("0.8", "0.9"):
+            a, b = ds.get(f"fa_at_{p}", math.inf), paper.get(f"fa_at_{p}", math.inf)
+            if math.isfinite(a) and math.isfinite(b):
+                f = g["fewer"].setdefault(f"DS paper at Pd {p}", {"scenes": 0, "DS look": 0.0, "DS paper": 0.0})
+                f["scenes"] += 1
+                f["DS look"] += a
+                f["DS paper"] += b
+        g["op"]["false_alarms"] += int(ds["op_fa"])
+        g["op"]["roc_at_op_pd"] += float(ds["roc_fa_at_op_pd"])
+        g["no_detection"] += int(ds["no_detection"])
+        n1, a1 = int(ds["one_leg_covered_objects"]), int(ds["one_leg_covered_above_report"])
+        g["_one_leg"][0] += n1 - a1
+        g["_one_leg"][1] += n1
+        g["_multi"][0] += int(ds["multi_look_above_report"])
+        g["_multi"][1] += int(ds["multi_look_targets"])
+        for k, v in r.get("checks", {}).items():
+            g["scenes_passing"][k] = g["scenes_passing"].get(k, 0) + bool(v)
+    for name, g in out.items():
+        g["one_leg"] = share(*g.pop("_one_leg"))
+        g["multi_look"] = share(*g.pop("_multi"))
+        g["reliability_rises"] = bool(rel.get(name, {}).get("rises", False))
+    return out
+
+
+def pooled_checks_markdown(pooled: dict[str, dict]) -> list[str]:
+    """:func:`pooled_checks` as Markdown lines, one block per variant."""
+    lines = []
+    for name, g in pooled.items():
+        ol, ml = g["one_leg"], g["multi_look"]
+
+        def pct(x):
+            return "-" if x[2] is None else f"{100 * x[2]:.1f} % [{100 * x[3]:.1f}, {100 * x[4]:.1f}]"
+        fewer = "; ".join(f"{k} {v['DS look']:g} against {v[next(x for x in v if x not in ('scenes', 'DS look'))]:g}"
+                          f" ({v['scenes']} of {g['scenes']} scenes)" for k, v in g["fewer"].items())
+        passing = ", ".join(f"{k} {v}" for k, v in g["scenes_passing"].items())
+        lines += [f"- {name} ({g['scenes']} scenes, {g['targets']} targets):",
+                  f"  - targets on a contact at any Bel: DS look {g['pd_max']['DS look']}, OR {g['pd_max']['OR']}",
+                  f"  - false alarms at equal Pd, DS look against each: {fewer}",
+                  f"  - operating point: {g['op']['false_alarms']} false alarms, the ROC's at the same Pd "
+                  f"{g['op']['roc_at_op_pd']:g} (ratio {g['op']['false_alarms'] / max(g['op']['roc_at_op_pd'], 1):.2f})",
+                  f"  - contacts without a detection: {g['no_detection']}",
+                  f"  - covered one-leg objects below report_bel: {ol[0]} of {ol[1]}, {pct(ol)}",
+                  f"  - multi-look targets above report_bel: {ml[0]} of {ml[1]}, {pct(ml)}",
+                  f"  - pooled reliability rises: {'yes' if g['reliability_rises'] else 'NO'}",
+                  f"  - scenes passing each check: {passing}"]
+    return lines
+
+
 def _curve_figures(curve) -> dict:
     pdmax = curve.best_pd()
     f = {"pd_max": round(pdmax, 3), "fa_at_max": curve.fa_at_pd(pdmax) if pdmax > 0 else 0.0}
@@ -615,6 +703,10 @@ def markdown(results: list[dict]) -> str:
                          f"{g['error_p90_m']} m, largest {g['error_max_m']} m; flagged beyond the gate {g['flagged']} "
                          f"(largest true shift {g['truth_distance_max_m']} m)")
         lines.append("")
+        lines.append("The checks pooled over each variant's scenes (DS look; the counts of every scene summed, the "
+                     "shares with a 95 % Wilson interval; the issue asks each check per scene, above)")
+        lines += pooled_checks_markdown(pooled_checks(results))
+        lines.append("")
         lines.append("Reliability pooled over each variant's scenes (DS look): Bel bin -> contacts, share on a target "
                      "[95 % Wilson interval]")
         for name, g in pooled_reliability(results).items():
@@ -775,6 +867,7 @@ def _heldout_run(args, out: Path, settings, seabeds, seeds, legs, length, argv, 
                                                       "scenes": results, "pooled_reliability": pooled_reliability(results),
                                                       "pooled_fa_anatomy": pooled_fa_anatomy(results),
                                                       "pooled_leg_shifts": pooled_leg_shifts(results),
+                                                      "pooled_checks": pooled_checks(results),
                                                       "recordings": recordings},
                                                      indent=1, default=float) + "\n")
     except OSError as exc:
