@@ -344,15 +344,19 @@ def pooled_checks(results: list[dict]) -> dict[str, dict]:
     return out
 
 
+def _pct(share: list) -> str:
+    """A :func:`pooled_checks` share ``[k, n, share, low, high]`` in per cent with its interval."""
+    return "-" if share[2] is None else f"{100 * share[2]:.1f} % [{100 * share[3]:.1f}, {100 * share[4]:.1f}]"
+
+
 def pooled_checks_markdown(pooled: dict[str, dict]) -> list[str]:
     """:func:`pooled_checks` as Markdown lines, one block per variant."""
     lines = []
     for name, g in pooled.items():
         ol, ml = g["one_leg"], g["multi_look"]
-
-        def pct(x):
-            return "-" if x[2] is None else f"{100 * x[2]:.1f} % [{100 * x[3]:.1f}, {100 * x[4]:.1f}]"
-        fewer = "; ".join(f"{k} {v['DS look']:g} against {v[next(x for x in v if x not in ('scenes', 'DS look'))]:g}"
+        # each "fewer" entry holds DS look's sum and the baseline's under the baseline's name
+        # ("DS paper" for the two Pd points read against the paper's ROC)
+        fewer = "; ".join(f"{k} {v['DS look']:g} against {v['DS paper' if k.startswith('DS paper') else k]:g}"
                           f" ({v['scenes']} of {g['scenes']} scenes)" for k, v in g["fewer"].items())
         passing = ", ".join(f"{k} {v}" for k, v in g["scenes_passing"].items())
         lines += [f"- {name} ({g['scenes']} scenes, {g['targets']} targets):",
@@ -361,8 +365,8 @@ def pooled_checks_markdown(pooled: dict[str, dict]) -> list[str]:
                   f"  - operating point: {g['op']['false_alarms']} false alarms, the ROC's at the same Pd "
                   f"{g['op']['roc_at_op_pd']:g} (ratio {g['op']['false_alarms'] / max(g['op']['roc_at_op_pd'], 1):.2f})",
                   f"  - contacts without a detection: {g['no_detection']}",
-                  f"  - covered one-leg objects below report_bel: {ol[0]} of {ol[1]}, {pct(ol)}",
-                  f"  - multi-look targets above report_bel: {ml[0]} of {ml[1]}, {pct(ml)}",
+                  f"  - covered one-leg objects below report_bel: {ol[0]} of {ol[1]}, {_pct(ol)}",
+                  f"  - multi-look targets above report_bel: {ml[0]} of {ml[1]}, {_pct(ml)}",
                   f"  - pooled reliability rises: {'yes' if g['reliability_rises'] else 'NO'}",
                   f"  - scenes passing each check: {passing}"]
     return lines
